@@ -1,0 +1,3 @@
+from slearn.cli import main
+
+main()

@@ -1,0 +1,57 @@
+"""The ``slearn`` command line: each subcommand lives in its own module here.
+
+Commands parse options, call one library function and render its result: results on
+stdout, progress and diagnostics on stderr, ``--json`` prints one JSON document only.
+Exit codes: 0 ok, 1 bad input (``SlearnError``), 2 usage error (click), 3 a truncated
+log was salvaged, 4 a ``--fail-under`` threshold was missed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from slearn import __version__
+from slearn.errors import SlearnError
+
+EXIT_TRUNCATED = 3
+EXIT_BELOW_THRESHOLD = 4
+
+# Subcommand modules; each defines one click command (or group) named ``command``.
+_COMMAND_MODULES = ("demo", "record", "info", "learn", "merge", "replay", "control", "datasets")
+
+
+class _Group(click.Group):
+    """Turns slearn's own errors into a one-line message and an exit code."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except SlearnError as err:
+            click.echo(f"slearn: error: {err}", err=True)
+            sys.exit(err.exit_code)
+        except KeyboardInterrupt:
+            click.echo("slearn: interrupted", err=True)
+            sys.exit(130)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="slearn")
+def main() -> None:
+    """S-learning: learn how a system behaves from its MCAP logs, then predict and control it."""
+
+
+def _register() -> None:
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"slearn.cli.{name}")
+        except ModuleNotFoundError as err:
+            if err.name == f"slearn.cli.{name}":
+                continue  # not built yet
+            raise
+        main.add_command(module.command)
+
+
+_register()

@@ -1,0 +1,27 @@
+"""Every error slearn raises on purpose derives from :class:`SlearnError`.
+
+Messages name the file, channel or field at fault and say what to do. The CLI maps
+the classes to exit codes; nothing else calls ``sys.exit``.
+"""
+
+
+class SlearnError(Exception):
+    """Base class of slearn's errors; the CLI exits 1 on it."""
+
+    exit_code = 1
+
+
+class InputError(SlearnError):
+    """A file, channel, field or option the user gave cannot be used."""
+
+
+class SpecError(InputError):
+    """A channel spec is malformed or does not fit the logs."""
+
+
+class LibraryFormatError(InputError):
+    """A file is not a readable slearn pattern library."""
+
+
+class TruncatedLogWarning(UserWarning):
+    """A log ended early; what could be salvaged was used (the CLI exits 3)."""

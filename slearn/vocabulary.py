@@ -1,0 +1,80 @@
+"""Symbols and their names: one vocabulary maps each integer symbol to (channel, value)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Hashable, Iterable
+
+from slearn.errors import InputError
+
+ACTION = "action"
+OBSERVATION = "observation"
+ROLES = (ACTION, OBSERVATION)
+
+
+@dataclass
+class Vocabulary:
+    """Bidirectional map between symbols (``int``) and ``(channel, value)`` pairs.
+
+    Symbols are handed out densely from 0 in order of first registration, so the
+    same registration order always gives the same symbols. Each channel has a role,
+    ``"action"`` or ``"observation"``; values are kept as given (str, int, bool, ...).
+    """
+
+    _names: list[tuple[str, Hashable]] = field(default_factory=list)
+    _symbols: dict[tuple[str, Hashable], int] = field(default_factory=dict)
+    roles: dict[str, str] = field(default_factory=dict)
+
+    def add_channel(self, channel: str, role: str) -> None:
+        """Declare ``channel`` with its role; re-declaring with another role is an error."""
+        if role not in ROLES:
+            raise InputError(f"channel {channel!r}: role must be one of {ROLES}, not {role!r}")
+        known = self.roles.setdefault(channel, role)
+        if known != role:
+            raise InputError(f"channel {channel!r} is declared both {known} and {role}")
+
+    def symbol(self, channel: str, value: Hashable) -> int:
+        """The symbol of ``(channel, value)``, registering it on first sight."""
+        key = (channel, value)
+        found = self._symbols.get(key)
+        if found is not None:
+            return found
+        if channel not in self.roles:
+            raise InputError(f"channel {channel!r} has no role: declare it with add_channel first")
+        found = len(self._names)
+        self._names.append(key)
+        self._symbols[key] = found
+        return found
+
+    def get_symbol(self, channel: str, value: Hashable) -> int | None:
+        """The symbol of ``(channel, value)`` or ``None`` when it was never registered."""
+        return self._symbols.get((channel, value))
+
+    def name(self, symbol: int) -> tuple[str, Hashable]:
+        """``(channel, value)`` of a symbol."""
+        return self._names[symbol]
+
+    def role(self, symbol: int) -> str:
+        """The role of the channel a symbol belongs to."""
+        return self.roles[self._names[symbol][0]]
+
+    def label(self, symbol: int) -> str:
+        """A short human-readable label, ``channel=value``."""
+        channel, value = self._names[symbol]
+        return f"{channel}={value}"
+
+    def channels(self) -> list[str]:
+        """Channels in declaration order."""
+        return list(self.roles)
+
+    def symbols_of(self, channel: str) -> list[int]:
+        """All symbols of one channel, in symbol order."""
+        return [s for s, (c, _) in enumerate(self._names) if c == channel]
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def items(self) -> Iterable[tuple[int, str, Hashable]]:
+        """``(symbol, channel, value)`` for every symbol, in symbol order."""
+        for symbol, (channel, value) in enumerate(self._names):
+            yield symbol, channel, value
