@@ -1,0 +1,174 @@
+"""Write one episode of JSON events to an MCAP file, atomically.
+
+:class:`EpisodeWriter` is a context manager around ``mcap.writer.Writer``. It writes to a
+temporary file next to the target and always calls ``Writer.finish()``, so the summary and
+footer are written. On a clean exit it fsyncs the file and ``os.replace``-s it onto the
+target, so a reader never sees a half-written episode.
+
+When the block raises, what happens depends on ``keep_partial``:
+
+- ``False`` (default, for batch recording): the temporary file is removed and the target is
+  left as it was.
+- ``True`` (for live loops): the episode recorded so far is finished into a valid MCAP file
+  and moved onto the target anyway; the exception still propagates.
+
+If the process is killed outright, only the temporary file (``.NAME.*.tmp`` in the same
+folder) remains; chunks written before the last :meth:`EpisodeWriter.flush` can be salvaged
+from it with a linear reader.
+
+Channels carry JSON objects (``message_encoding="json"``) with named ``jsonschema``
+schemas, which Foxglove shows as they are. Time fields inside messages use
+``{"sec", "nsec"}`` (see :func:`stamp`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+from mcap.writer import CompressionType, Writer
+
+from slearn import __version__
+from slearn.errors import InputError
+
+_NS_PER_S = 1_000_000_000
+
+
+def stamp(time_ns: int) -> dict[str, int]:
+    """A time as the ``{"sec", "nsec"}`` object Foxglove reads."""
+    sec, nsec = divmod(int(time_ns), _NS_PER_S)
+    return {"sec": sec, "nsec": nsec}
+
+
+class EpisodeWriter:
+    """Context manager writing one MCAP episode of JSON messages to ``path``.
+
+    Args:
+        path: the target file.
+        overwrite: replace an existing target; without it an existing target is an
+            :class:`~slearn.errors.InputError`.
+        keep_partial: when the block raises, keep what was written as a valid file.
+        chunk_size: bytes per zstd-compressed chunk.
+
+    Example::
+
+        with EpisodeWriter("run.mcap") as out:
+            channel = out.register_channel("/pointer/command", "slearn.pointer.Command",
+                                           {"type": "object"})
+            out.write(channel, 0, {"command": "R"})
+    """
+
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
+                 keep_partial: bool = False, chunk_size: int = 1 << 20) -> None:
+        self.path = Path(path)
+        self.overwrite = overwrite
+        self.keep_partial = keep_partial
+        self._chunk_size = chunk_size
+        self._file: IO[bytes] | None = None
+        self._tmp_path: Path | None = None
+        self._writer: Writer | None = None
+        self._schemas: dict[tuple[str, str], int] = {}
+        self._sequences: dict[int, int] = {}
+
+    def __enter__(self) -> "EpisodeWriter":
+        self._check_target()
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                   dir=self.path.parent)
+        self._tmp_path = Path(tmp)
+        self._file = os.fdopen(fd, "wb")
+        self._writer = Writer(self._file, chunk_size=self._chunk_size,
+                              compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library=f"slearn {__version__}")
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        publish = exc_type is None or self.keep_partial
+        try:
+            self._close()
+        except BaseException:
+            publish = False
+            raise
+        finally:
+            self._settle(publish)
+
+    def register_channel(self, topic: str, schema_name: str, json_schema: dict[str, Any],
+                         metadata: dict[str, str] | None = None) -> int:
+        """Declare a JSON channel; returns its id. Equal schemas are stored once."""
+        schema_data = json.dumps(json_schema, sort_keys=True).encode()
+        key = (schema_name, schema_data.decode())
+        schema_id = self._schemas.get(key)
+        if schema_id is None:
+            schema_id = self._active().register_schema(schema_name, "jsonschema", schema_data)
+            self._schemas[key] = schema_id
+        channel_id = self._active().register_channel(topic, "json", schema_id, metadata or {})
+        self._sequences[channel_id] = 0
+        return channel_id
+
+    def write(self, channel_id: int, log_time_ns: int, message: dict[str, Any]) -> None:
+        """Write one JSON object on a channel at ``log_time_ns`` (also its publish time)."""
+        self.write_encoded(channel_id, log_time_ns,
+                           json.dumps(message, separators=(",", ":")).encode())
+
+    def write_encoded(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
+        """Write an already JSON-encoded message (for hot loops that cache payloads)."""
+        sequence = self._sequences[channel_id]
+        self._sequences[channel_id] = sequence + 1
+        self._active().add_message(channel_id, log_time=log_time_ns, data=data,
+                                   publish_time=log_time_ns, sequence=sequence)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Add an MCAP metadata record (per-episode facts: seed, condition, version)."""
+        self._active().add_metadata(name, {str(k): str(v) for k, v in data.items()})
+
+    def flush(self) -> None:
+        """Push buffered messages to the temporary file (call at episode ends in live loops).
+
+        Closes the current chunk, so what was written survives a killed process in the
+        temporary file.
+        """
+        self._active().flush()
+
+    def _check_target(self) -> None:
+        if self.path.exists() and not self.overwrite:
+            raise InputError(f"{self.path} already exists: choose another name or allow "
+                             "overwriting it")
+        if not self.path.parent.is_dir():
+            raise InputError(f"cannot write {self.path}: folder {self.path.parent} does not exist")
+
+    def _active(self) -> Writer:
+        if self._writer is None:
+            raise RuntimeError("EpisodeWriter is not open: use it in a with block")
+        return self._writer
+
+    def _close(self) -> None:
+        writer, self._writer = self._writer, None
+        try:
+            writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+        finally:
+            self._file.close()
+
+    def _settle(self, publish: bool) -> None:
+        if publish:
+            os.replace(self._tmp_path, self.path)
+            _fsync_folder(self.path.parent)
+        else:
+            self._tmp_path.unlink(missing_ok=True)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make the rename durable (best effort: not every platform can open a folder)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
