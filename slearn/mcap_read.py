@@ -1,0 +1,516 @@
+"""Robust, streaming reading of MCAP files: raw messages in log-time order.
+
+This is the one MCAP reading path of slearn (learn, replay and info share it).
+
+How it reads, and why:
+
+1. **Scan** (pass 1): walk the record headers of the data section with seeks, never
+   decompressing. Each ``Chunk`` becomes a *block* (its header gives the first log time);
+   runs of messages written outside chunks are grouped into blocks of at most
+   ``_BLOCK_MESSAGES`` messages (their log times are read from the message headers).
+   Schemas and channels outside chunks (data section and summary) are registered. The
+   scan never trusts the summary or its indexes: they are missing, incomplete (channels
+   not repeated: ``KeyError`` in ``mcap.reader.SeekingReader`` on 112 conformance
+   variants) or gone (truncated files) exactly when they are needed. A record that runs
+   past the end of the file, or a missing footer, marks where the file broke.
+2. **Merge** (pass 2): a k-way merge of the blocks. Blocks are opened in order of their
+   first log time; a block is opened only when the merge frontier reaches it, and its
+   messages are sorted inside the block (stable, so ties keep file order). The merge key
+   is ``(log_time, block position in the file, position in the block)``: log-time order
+   with ties in file order, whatever the file layout.
+
+Memory holds the open blocks only (the chunks whose time ranges overlap the frontier,
+plus a small block index), so it does not grow with the length of the log. A chunk or
+record that cannot be read is skipped; what it cost is recorded in a :class:`ReadReport`
+and, at the end of the pass, a :class:`~slearn.errors.TruncatedLogWarning` names the
+file, the messages read and the byte offset where it broke.
+"""
+
+from __future__ import annotations
+
+import heapq
+import os
+import struct
+import warnings
+import zlib
+from dataclasses import dataclass, field
+from operator import itemgetter
+from typing import BinaryIO, Callable, Iterable, Iterator, NamedTuple
+
+from slearn.errors import InputError, TruncatedLogWarning
+
+MAGIC = b"\x89MCAP0\r\n"
+
+_OP_HEADER = 0x01
+_OP_FOOTER = 0x02
+_OP_SCHEMA = 0x03
+_OP_CHANNEL = 0x04
+_OP_MESSAGE = 0x05
+_OP_CHUNK = 0x06
+_OP_DATA_END = 0x0F
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_CHUNK_TIMES = struct.Struct("<QQQI")
+
+_BLOCK_MESSAGES = 4096  # messages outside chunks are merged in blocks of this many
+_BLOCK_BYTES = 4 << 20
+_SMALL_RECORD = 1 << 24  # schema/channel/header records larger than this are corrupt
+
+
+@dataclass(frozen=True)
+class SchemaInfo:
+    """A schema record: ``id``, ``name``, ``encoding`` and the raw schema ``data``."""
+
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelInfo:
+    """A channel record with its schema resolved (``None`` for schemaless channels)."""
+
+    id: int
+    topic: str
+    message_encoding: str
+    schema: SchemaInfo | None
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def schema_name(self) -> str:
+        """The schema name, ``""`` when schemaless."""
+        return self.schema.name if self.schema else ""
+
+    @property
+    def schema_encoding(self) -> str:
+        """The schema encoding, ``""`` when schemaless."""
+        return self.schema.encoding if self.schema else ""
+
+
+class RawMessage(NamedTuple):
+    """One undecoded message; ``data`` is the payload as written."""
+
+    channel: ChannelInfo
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    data: bytes
+
+    @property
+    def topic(self) -> str:
+        """The topic of the message's channel."""
+        return self.channel.topic
+
+    @property
+    def channel_id(self) -> int:
+        """The id of the message's channel."""
+        return self.channel.id
+
+
+@dataclass
+class ReadReport:
+    """What one pass over a file read, and where (if anywhere) the file broke.
+
+    Attributes:
+        path: the file.
+        n_messages: messages yielded (after topic filtering).
+        size_bytes: the file size.
+        broken_at: byte offset of the first record that could not be read, else ``None``.
+        reason: why it broke.
+        n_skipped_chunks: chunks skipped as unreadable (corrupt) before the end.
+    """
+
+    path: str
+    n_messages: int = 0
+    size_bytes: int = 0
+    broken_at: int | None = None
+    reason: str | None = None
+    n_skipped_chunks: int = 0
+
+    @property
+    def truncated(self) -> bool:
+        """True when part of the file could not be read."""
+        return self.broken_at is not None
+
+    def note_break(self, offset: int, reason: str) -> None:
+        """Record a break; the first one is kept as the one to report."""
+        if self.broken_at is None:
+            self.broken_at, self.reason = offset, reason
+
+    def describe(self) -> str:
+        """A one-line summary naming the file, the messages read and the break."""
+        if not self.truncated:
+            return f"{self.path}: {self.n_messages} messages read"
+        skipped = f", {self.n_skipped_chunks} unreadable chunk(s) skipped" if self.n_skipped_chunks else ""
+        return (f"{self.path}: truncated or corrupt log: salvaged {self.n_messages} messages; "
+                f"broke at byte {self.broken_at} of {self.size_bytes} ({self.reason}){skipped}")
+
+
+@dataclass
+class _Block:
+    """A byte range of the data section read as one unit in the merge."""
+
+    offset: int
+    end: int
+    min_time: int
+    is_chunk: bool
+
+
+@dataclass
+class _Layout:
+    """What the scan found: header fields, blocks in file order, schemas, channels."""
+
+    profile: str = ""
+    library: str = ""
+    blocks: list[_Block] = field(default_factory=list)
+    schemas: dict[int, SchemaInfo] = field(default_factory=dict)
+    channels: dict[int, ChannelInfo] = field(default_factory=dict)
+    raw_channels: dict[int, tuple] = field(default_factory=dict)
+
+
+class McapLog:
+    """An MCAP file opened for streaming; use as a context manager.
+
+    Opening scans the record headers (see the module docstring); ``profile``,
+    ``library`` and the channels defined outside chunks are then known. Channels defined
+    inside chunks appear in ``channels`` as the chunks are read.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = os.fspath(path)
+        try:
+            self._file: BinaryIO = open(self.path, "rb")
+        except OSError as err:
+            raise InputError(f"{self.path}: cannot open: {err.strerror or err}") from err
+        self.report = ReadReport(self.path, size_bytes=os.fstat(self._file.fileno()).st_size)
+        try:
+            self._layout = _scan(self._file, self.report)
+        except BaseException:
+            self._file.close()
+            raise
+
+    def __enter__(self) -> "McapLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the file."""
+        self._file.close()
+
+    @property
+    def profile(self) -> str:
+        """The header's profile (``ros1``, ``ros2``, ``""``, ...)."""
+        return self._layout.profile
+
+    @property
+    def library(self) -> str:
+        """The header's writer library."""
+        return self._layout.library
+
+    @property
+    def channels(self) -> dict[int, ChannelInfo]:
+        """Channels known so far, by id."""
+        return self._layout.channels
+
+    def iter_messages(self, topics: Iterable[str] | None = None,
+                      on_progress: Callable[[int, int], None] | None = None) -> Iterator[RawMessage]:
+        """Yield raw messages in log-time order, ties in file order.
+
+        Args:
+            topics: only these topics (``None``: all).
+            on_progress: called with ``(bytes_read, file_size)`` as blocks are opened.
+
+        ``self.report`` counts what was yielded and records where the file broke.
+        """
+        wanted = None if topics is None else frozenset(topics)
+        merge = _Merge(self._file, self._layout, self.report, wanted, on_progress)
+        for message in merge:
+            self.report.n_messages += 1
+            yield message
+
+
+def iter_messages(path: str | os.PathLike, *, topics: Iterable[str] | None = None,
+                  report: ReadReport | None = None, warn: bool = True,
+                  on_progress: Callable[[int, int], None] | None = None) -> Iterator[RawMessage]:
+    """Yield the raw messages of one MCAP file in log-time order, ties in file order.
+
+    Args:
+        path: the MCAP file.
+        topics: only these topics (``None``: all).
+        report: filled in as the pass goes (messages read, where the file broke).
+        warn: at the end of a pass over a truncated or corrupt file, warn with a
+            :class:`~slearn.errors.TruncatedLogWarning` naming the file, the number of
+            messages read and the byte offset of the break.
+        on_progress: called with ``(bytes_read, file_size)``.
+
+    Raises:
+        InputError: the file cannot be opened or is not MCAP at all.
+    """
+    with McapLog(path) as log:
+        yield from log.iter_messages(topics, on_progress)
+        if report is not None:
+            report.__dict__.update(log.report.__dict__)
+        if warn and log.report.truncated:
+            warnings.warn(TruncatedLogWarning(log.report.describe()), stacklevel=2)
+
+
+# --- pass 1: scan ---------------------------------------------------------------------
+
+class _BlockBuilder:
+    """Groups consecutive messages written outside chunks into blocks."""
+
+    def __init__(self, blocks: list[_Block]) -> None:
+        self.blocks = blocks
+        self.start = self.end = self.count = 0
+        self.min_time = 0
+
+    def add(self, offset: int, end: int, log_time: int) -> None:
+        if self.count and (self.count >= _BLOCK_MESSAGES or end - self.start > _BLOCK_BYTES):
+            self.close()
+        if not self.count:
+            self.start, self.min_time = offset, log_time
+        self.min_time = min(self.min_time, log_time)
+        self.end, self.count = end, self.count + 1
+
+    def close(self) -> None:
+        if self.count:
+            self.blocks.append(_Block(self.start, self.end, self.min_time, False))
+        self.count = 0
+
+
+def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
+    """Pass 1: walk record headers, build blocks, register schemas and channels."""
+    size = report.size_bytes
+    if f.read(8) != MAGIC:
+        raise InputError(f"{report.path}: not an MCAP file (no MCAP magic at the start)")
+    layout = _Layout()
+    builder = _BlockBuilder(layout.blocks)
+    pos = 8
+    while True:
+        head = f.read(9)
+        if len(head) < 9:
+            report.note_break(pos, "file ends before the footer" if not head
+                              else "file ends inside a record header")
+            break
+        op, length = _RECORD_HEAD.unpack(head)
+        end = pos + 9 + length
+        if end > size:
+            report.note_break(pos, f"record (opcode 0x{op:02x}) of {length} bytes runs past the end")
+            break
+        if op == _OP_MESSAGE:
+            builder.add(pos, end, _read_message_time(f, length))
+        else:
+            if op == _OP_CHUNK:
+                builder.close()
+            if op == _OP_FOOTER:
+                break
+            _scan_other(f, op, length, pos, end, layout)
+        pos = end
+        f.seek(pos)
+    builder.close()
+    _check_trailing_magic(f, pos, size, report)
+    _resolve_channels(layout)
+    return layout
+
+
+def _read_message_time(f: BinaryIO, length: int) -> int:
+    if length < _MESSAGE_HEAD.size:
+        return 0
+    return _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))[2]
+
+
+def _scan_other(f: BinaryIO, op: int, length: int, pos: int, end: int, layout: _Layout) -> None:
+    """Handle a non-message record of the scan (only its start has been read)."""
+    if op == _OP_CHUNK:
+        start_time = _U64.unpack(f.read(8))[0] if length >= 8 else 0
+        layout.blocks.append(_Block(pos, end, start_time, True))
+    elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_HEADER) and length < _SMALL_RECORD:
+        _register_record(op, f.read(length), 0, length, layout)
+
+
+def _check_trailing_magic(f: BinaryIO, pos: int, size: int, report: ReadReport) -> None:
+    if report.truncated:
+        return
+    f.seek(pos + 9 + 20)  # footer: summary_start, summary_offset_start, crc
+    if f.read(8) != MAGIC:
+        report.note_break(pos, "footer or trailing magic missing")
+
+
+def _read_str(buf: bytes, pos: int) -> tuple[str, int]:
+    (n,) = _U32.unpack_from(buf, pos)
+    pos += 4
+    return bytes(buf[pos:pos + n]).decode("utf-8", "replace"), pos + n
+
+
+def _register_record(op: int, buf: bytes, pos: int, end: int, layout: _Layout) -> None:
+    """Parse a schema, channel or header record from ``buf[pos:end]`` into ``layout``."""
+    if op == _OP_HEADER:
+        layout.profile, pos = _read_str(buf, pos)
+        layout.library, _ = _read_str(buf, pos)
+    elif op == _OP_SCHEMA:
+        (sid,) = _U16.unpack_from(buf, pos)
+        name, pos = _read_str(buf, pos + 2)
+        encoding, pos = _read_str(buf, pos)
+        (n,) = _U32.unpack_from(buf, pos)
+        layout.schemas.setdefault(sid, SchemaInfo(sid, name, encoding, bytes(buf[pos + 4:pos + 4 + n])))
+    elif op == _OP_CHANNEL:
+        cid, sid = struct.unpack_from("<HH", buf, pos)
+        topic, pos = _read_str(buf, pos + 4)
+        encoding, pos = _read_str(buf, pos)
+        layout.raw_channels.setdefault(cid, (sid, topic, encoding, _read_map(buf, pos)))
+
+
+def _read_map(buf: bytes, pos: int) -> dict[str, str]:
+    (n,) = _U32.unpack_from(buf, pos)
+    pos, end, out = pos + 4, pos + 4 + n, {}
+    while pos < end:
+        key, pos = _read_str(buf, pos)
+        out[key], pos = _read_str(buf, pos)
+    return out
+
+
+def _resolve_channels(layout: _Layout) -> None:
+    """Turn raw channel records into :class:`ChannelInfo` once their schema is known."""
+    for cid, (sid, topic, encoding, metadata) in list(layout.raw_channels.items()):
+        if cid in layout.channels or (sid != 0 and sid not in layout.schemas):
+            continue
+        layout.channels[cid] = ChannelInfo(cid, topic, encoding, layout.schemas.get(sid), metadata)
+
+
+# --- pass 2: blocks and merge ---------------------------------------------------------
+
+def _decompress(compression: str, data: bytes, uncompressed_size: int) -> bytes:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=uncompressed_size)
+    if compression == "lz4":
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+def _chunk_records(f: BinaryIO, block: _Block) -> bytes:
+    """Read, decompress and check one chunk; raise ``ValueError`` when it is unreadable."""
+    f.seek(block.offset + 9)
+    buf = f.read(block.end - block.offset - 9)
+    try:
+        _, _, uncompressed_size, crc = _CHUNK_TIMES.unpack_from(buf, 0)
+        compression, pos = _read_str(buf, _CHUNK_TIMES.size)
+        (n,) = _U64.unpack_from(buf, pos)
+    except struct.error as err:
+        raise ValueError(f"chunk header unreadable: {err}") from err
+    if pos + 8 + n > len(buf):
+        raise ValueError("chunk records run past the chunk")
+    try:
+        data = _decompress(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
+    except Exception as err:  # zstd/lz4 raise their own error types
+        raise ValueError(f"chunk cannot be decompressed: {err}") from err
+    if crc and zlib.crc32(data) != crc:
+        raise ValueError("chunk CRC mismatch")
+    return data
+
+
+def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None) -> list[tuple]:
+    """Messages of a run of records, as ``(log_time, publish_time, sequence, channel_id, data)``."""
+    out: list[tuple] = []
+    pos, end = 0, len(buf)
+    channels = layout.channels
+    while pos + 9 <= end:
+        op, length = _RECORD_HEAD.unpack_from(buf, pos)
+        body, nxt = pos + 9, pos + 9 + length
+        if nxt > end:
+            raise ValueError(f"record at +{pos} runs past the end of its block")
+        if op == _OP_MESSAGE:
+            cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
+            channel = channels.get(cid)
+            if wanted is None or channel is None or channel.topic in wanted:
+                out.append((log_time, publish_time, seq, cid, buf[body + 22:nxt]))
+        elif op in (_OP_SCHEMA, _OP_CHANNEL):
+            _register_record(op, buf, body, nxt, layout)
+            _resolve_channels(layout)
+        pos = nxt
+    out.sort(key=itemgetter(0))  # stable: ties keep file order
+    return out
+
+
+class _Merge:
+    """Pass 2: k-way merge of blocks by ``(log_time, block index, index in block)``."""
+
+    def __init__(self, f: BinaryIO, layout: _Layout, report: ReadReport,
+                 wanted: frozenset[str] | None, on_progress) -> None:
+        self.f, self.layout, self.report, self.wanted = f, layout, report, wanted
+        self.on_progress = on_progress
+        self.order = sorted(range(len(layout.blocks)), key=lambda i: (layout.blocks[i].min_time, i))
+        self.cache: dict[int, list[tuple]] = {}
+        self.opened = [False] * len(layout.blocks)
+        self.harvested_upto = 0  # blocks before this index are opened or cached
+        self.bytes_read = 0
+
+    def _parse(self, i: int) -> list[tuple]:
+        block = self.layout.blocks[i]
+        try:
+            if block.is_chunk:
+                buf = _chunk_records(self.f, block)
+            else:
+                self.f.seek(block.offset)
+                buf = self.f.read(block.end - block.offset)
+            messages = _parse_messages(buf, self.layout, self.wanted)
+        except (ValueError, struct.error) as err:
+            self.report.note_break(block.offset, str(err))
+            self.report.n_skipped_chunks += block.is_chunk
+            messages = []
+        self.bytes_read += block.end - block.offset
+        if self.on_progress is not None:
+            self.on_progress(self.bytes_read, self.report.size_bytes)
+        return messages
+
+    def _open(self, i: int) -> list[tuple]:
+        self.opened[i] = True
+        messages = self.cache.pop(i, None)
+        if messages is None:
+            messages = self._parse(i)
+        if any(m[3] not in self.layout.channels for m in messages):
+            self._harvest_before(i)
+        return messages
+
+    def _harvest_before(self, i: int) -> None:
+        """Parse unopened blocks before ``i`` in file order: they may define its channels."""
+        for j in range(self.harvested_upto, i):
+            if not self.opened[j] and j not in self.cache:
+                self.cache[j] = self._parse(j)
+        self.harvested_upto = max(self.harvested_upto, i)
+
+    def __iter__(self) -> Iterator[RawMessage]:
+        blocks, channels = self.layout.blocks, self.layout.channels
+        heap: list[tuple] = []
+        k = 0
+        while True:
+            while k < len(self.order) and (not heap or blocks[self.order[k]].min_time <= heap[0][0]):
+                i = self.order[k]
+                messages = self._open(i)
+                if messages:
+                    heapq.heappush(heap, (messages[0][0], i, 0, messages))
+                k += 1
+            if not heap:
+                return
+            _, i, j, messages = heap[0]
+            log_time, publish_time, seq, cid, data = messages[j]
+            if j + 1 < len(messages):
+                heapq.heapreplace(heap, (messages[j + 1][0], i, j + 1, messages))
+            else:
+                heapq.heappop(heap)
+            channel = channels.get(cid)
+            if channel is None:
+                self.report.note_break(blocks[i].offset, f"message on undefined channel id {cid}")
+                continue
+            if self.wanted is None or channel.topic in self.wanted:
+                yield RawMessage(channel, log_time, publish_time, seq, data)
