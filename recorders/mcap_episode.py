@@ -33,7 +33,7 @@ from typing import IO, Any
 from mcap.writer import CompressionType, Writer
 
 from slearn import __version__
-from slearn.errors import InputError
+from slearn.errors import InputError, SlearnError
 
 _NS_PER_S = 1_000_000_000
 
@@ -116,9 +116,13 @@ class EpisodeWriter:
 
     def write_encoded(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
         """Write an already JSON-encoded message (for hot loops that cache payloads)."""
-        sequence = self._sequences[channel_id]
+        writer = self._active()
+        sequence = self._sequences.get(channel_id)
+        if sequence is None:
+            raise InputError(f"{self.path}: channel id {channel_id} was not registered "
+                             "(use register_channel's return value)")
         self._sequences[channel_id] = sequence + 1
-        self._active().add_message(channel_id, log_time=log_time_ns, data=data,
+        writer.add_message(channel_id, log_time=log_time_ns, data=data,
                                    publish_time=log_time_ns, sequence=sequence)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
@@ -142,7 +146,7 @@ class EpisodeWriter:
 
     def _active(self) -> Writer:
         if self._writer is None:
-            raise RuntimeError("EpisodeWriter is not open: use it in a with block")
+            raise SlearnError(f"EpisodeWriter for {self.path} is not open: use it in a with block")
         return self._writer
 
     def _close(self) -> None:
