@@ -1,0 +1,428 @@
+"""The channel spec: which topics and fields become events, their roles, and their symbols.
+
+A spec is a TOML file::
+
+    mode = "change"        # "message": every message is an event
+                           # "change": an event only when the channel's symbol changes
+                           # "tick": a fixed-rate tick with sample-and-hold (set tick_ms)
+    # tick_ms = 100        # or tick_ns = 100_000_000
+
+    [[channel]]
+    topic = "/joint_states"
+    field = "position[name=r_shoulder_pan_joint]"
+    role = "observation"   # or "action"
+    name = "r_shoulder_pan"  # optional; default: the topic, or "topic:field" when a
+                             # topic has several entries
+    range = [-2.0, 2.0]    # numeric: `count` uniform bins over the range (values
+    count = 8              # outside fall in the end bins)
+    # wrap = true          # angles: values wrap into the range before binning
+
+    [[channel]]
+    topic = "/pointer/command"
+    field = "command"
+    role = "action"
+    values = ["L", "R"]    # categorical with declared values (fixes symbol order)
+
+Symbolizers (one per entry; no binning key means categorical, values as they are):
+``values = [...]`` (categorical, declared order first), ``width`` + ``origin`` (uniform
+bins, unbounded, the symbol is ``floor((x - origin) / width)``), ``range`` + ``count``
+(optionally ``wrap``), ``edges = [...]`` (bin ``k`` holds ``edges[k-1] <= x < edges[k]``),
+``quantiles = n`` (``n`` bins with edges fitted on training logs, see
+:func:`slearn.serialize.fit_spec`). Bin symbols are bin indices (``int``).
+
+The CLI shorthand ``TOPIC:FIELD:ROLE[:OPTIONS]`` (:func:`parse_channel_option`) makes
+one entry; OPTIONS are ``key=value`` pairs separated by commas, list items by ``;``:
+``/joint_states:position[name=r_wrist_roll_joint]:observation:range=-3;3,count=6``.
+
+:meth:`Spec.to_dict` / :meth:`Spec.from_dict` give plain JSON-able data, fitted edges
+included, so a saved library re-bins held-out logs identically.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Hashable, Iterable
+
+from slearn.decode import FieldPath, FieldPathError, parse_field_path
+from slearn.errors import SpecError
+from slearn.vocabulary import ACTION, OBSERVATION, ROLES
+
+MODES = ("message", "change", "tick")
+DEFAULT_MODE = "change"
+
+_BIN_KEYS = ("width", "origin", "range", "count", "edges", "quantiles", "wrap")
+_ENTRY_KEYS = ("topic", "field", "role", "name", "values") + _BIN_KEYS
+_SPEC_KEYS = ("mode", "tick_ms", "tick_ns", "channel")
+
+
+@dataclass(frozen=True)
+class Categorical:
+    """Values as they are; ``values`` (optional) are registered first, in this order."""
+
+    values: tuple | None = None
+
+    def symbol_value(self, x: Any) -> Hashable | None:
+        """The vocabulary value of a field value (lists become tuples)."""
+        if isinstance(x, (list, tuple)):
+            return tuple(x)
+        if isinstance(x, (bytes, bytearray)) or x is None:
+            return None
+        return x
+
+    def declared_values(self) -> list | None:
+        """Values to register up front, in order."""
+        return list(self.values) if self.values is not None else None
+
+    @property
+    def fitted(self) -> bool:
+        """Categorical symbolizers need no fitting."""
+        return True
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able description."""
+        return {"values": list(self.values)} if self.values is not None else {}
+
+
+@dataclass(frozen=True)
+class Bins:
+    """Numeric bins; exactly one of ``width``, ``range``/``count``, ``edges``, ``quantiles``."""
+
+    width: float | None = None
+    origin: float = 0.0
+    range: tuple[float, float] | None = None
+    count: int | None = None
+    edges: tuple[float, ...] | None = None
+    quantiles: int | None = None
+    wrap: bool = False
+
+    @property
+    def fitted(self) -> bool:
+        """False for quantile bins whose edges are not fitted yet."""
+        return self.quantiles is None or self.edges is not None
+
+    def cuts(self) -> tuple[float, ...]:
+        """Bin boundaries for bisection (not used by ``width`` bins)."""
+        if self.range is not None and self.quantiles is None:
+            lo, hi = self.range
+            return tuple(lo + (hi - lo) * k / self.count for k in range(1, self.count))
+        return self.edges or ()
+
+    def n_bins(self) -> int | None:
+        """Number of bins, ``None`` when unbounded (``width``)."""
+        return None if self.width is not None else len(self.cuts()) + 1
+
+    def symbol_value(self, x: Any) -> int | None:
+        """The bin index of ``x``; ``None`` for non-numbers, NaN and infinities."""
+        try:
+            x = float(x)
+        except (TypeError, ValueError):
+            return None
+        if not math.isfinite(x):
+            return None
+        if self.wrap and self.range is not None:
+            lo, hi = self.range
+            x = lo + (x - lo) % (hi - lo)
+        if self.width is not None:
+            return math.floor((x - self.origin) / self.width)
+        return bisect.bisect_right(self._cuts, x)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_cuts", self.cuts() if self.width is None else ())
+
+    def declared_values(self) -> list | None:
+        """Bounded bins register all bin indices up front."""
+        n = self.n_bins()
+        return list(range(n)) if n is not None and self.fitted else None
+
+    def label(self, k: int) -> str:
+        """``[a, b)`` text of bin ``k``."""
+        if self.width is not None:
+            a = self.origin + k * self.width
+            return f"[{a:g}, {a + self.width:g})"
+        cuts = self.cuts()
+        a = cuts[k - 1] if k > 0 else -math.inf
+        b = cuts[k] if k < len(cuts) else math.inf
+        return f"[{a:g}, {b:g})"
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able description, fitted edges included."""
+        out: dict[str, Any] = {}
+        if self.width is not None:
+            out.update(width=self.width, origin=self.origin)
+        if self.range is not None:
+            out.update(range=list(self.range), count=self.count)
+        if self.quantiles is not None:
+            out["quantiles"] = self.quantiles
+        if self.edges is not None:
+            out["edges"] = list(self.edges)
+        if self.wrap:
+            out["wrap"] = True
+        return out
+
+
+Symbolizer = Categorical | Bins
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One entry: a field of a topic, its role, its vocabulary channel name, its symbolizer."""
+
+    topic: str
+    field: str
+    role: str
+    name: str
+    symbolizer: Symbolizer = field(default_factory=Categorical)
+
+    @property
+    def path(self) -> FieldPath:
+        """The parsed field path."""
+        return parse_field_path(self.field)
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able description."""
+        return {"topic": self.topic, "field": self.field, "role": self.role,
+                "name": self.name, **self.symbolizer.to_dict()}
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A channel spec: entries in order, the serialization mode and the tick period."""
+
+    channels: tuple[ChannelSpec, ...]
+    mode: str = DEFAULT_MODE
+    tick_ns: int | None = None
+    source: str = "<spec>"
+
+    def topics(self) -> list[str]:
+        """Topics the spec reads, in spec order, without repeats."""
+        return list(dict.fromkeys(c.topic for c in self.channels))
+
+    @property
+    def fitted(self) -> bool:
+        """True when every symbolizer is ready (quantile edges fitted)."""
+        return all(c.symbolizer.fitted for c in self.channels)
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able data (fitted edges included); :meth:`from_dict` reads it back."""
+        out: dict[str, Any] = {"mode": self.mode, "channel": [c.to_dict() for c in self.channels]}
+        if self.tick_ns is not None:
+            out["tick_ns"] = self.tick_ns
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "<spec>") -> "Spec":
+        """Build and check a spec from plain data (a parsed TOML file or :meth:`to_dict`)."""
+        return _build_spec(data, source)
+
+    def with_channels(self, channels: Iterable[ChannelSpec]) -> "Spec":
+        """A copy with other entries."""
+        return replace(self, channels=tuple(channels))
+
+
+def load_spec(path: str | Path) -> Spec:
+    """Read a TOML spec file.
+
+    Raises:
+        SpecError: the file cannot be read, is not TOML, or an entry is invalid; the
+            message names the file, the entry and the field.
+    """
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise SpecError(f"{path}: cannot read spec: {err.strerror or err}") from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise SpecError(f"{path}: not valid TOML: {err}") from err
+    return _build_spec(data, str(path))
+
+
+def _build_spec(data: dict, source: str) -> Spec:
+    if not isinstance(data, dict):
+        raise SpecError(f"{source}: a spec is a table of keys")
+    unknown = sorted(set(data) - set(_SPEC_KEYS))
+    if unknown:
+        raise SpecError(f"{source}: unknown key(s) {', '.join(unknown)} (known: {', '.join(_SPEC_KEYS)})")
+    mode = data.get("mode", DEFAULT_MODE)
+    if mode not in MODES:
+        raise SpecError(f"{source}: mode must be one of {', '.join(MODES)}, not {mode!r}")
+    tick_ns = _tick_ns(data, mode, source)
+    entries = data.get("channel")
+    if not isinstance(entries, list) or not entries:
+        raise SpecError(f"{source}: no [[channel]] entries: a spec needs at least one")
+    topics = [e.get("topic") if isinstance(e, dict) else None for e in entries]
+    channels = tuple(_build_entry(e, i, topics, source) for i, e in enumerate(entries))
+    names = [c.name for c in channels]
+    for name in names:
+        if names.count(name) > 1:
+            raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
+    return Spec(channels, mode, tick_ns, source)
+
+
+def _tick_ns(data: dict, mode: str, source: str) -> int | None:
+    if "tick_ms" in data and "tick_ns" in data:
+        raise SpecError(f"{source}: give tick_ms or tick_ns, not both")
+    tick = data.get("tick_ns", data["tick_ms"] * 1_000_000 if "tick_ms" in data else None)
+    if mode == "tick" and tick is None:
+        raise SpecError(f"{source}: mode \"tick\" needs tick_ms (or tick_ns)")
+    if tick is not None and (not isinstance(tick, (int, float)) or tick <= 0):
+        raise SpecError(f"{source}: the tick period must be a positive number, not {tick!r}")
+    return None if tick is None else int(tick)
+
+
+def _where(source: str, i: int, entry: dict) -> str:
+    topic = entry.get("topic", "?") if isinstance(entry, dict) else "?"
+    fld = entry.get("field", "") if isinstance(entry, dict) else ""
+    return f"{source}: channel entry {i + 1} ({topic}{':' + fld if fld else ''})"
+
+
+def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
+    where = _where(source, i, entry)
+    if not isinstance(entry, dict):
+        raise SpecError(f"{where}: an entry is a table with topic, field and role")
+    unknown = sorted(set(entry) - set(_ENTRY_KEYS))
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(_ENTRY_KEYS)})")
+    for key in ("topic", "role"):
+        if not isinstance(entry.get(key), str) or not entry[key]:
+            raise SpecError(f"{where}: `{key}` is required (a string)")
+    if entry["role"] not in ROLES:
+        raise SpecError(f"{where}: role must be \"action\" or \"observation\", not {entry['role']!r}")
+    fld = entry.get("field", "")
+    if not isinstance(fld, str):
+        raise SpecError(f"{where}: `field` must be a string")
+    try:
+        parse_field_path(fld)
+    except FieldPathError as err:
+        raise SpecError(f"{where}: {err}") from err
+    name = entry.get("name") or (entry["topic"] if topics.count(entry["topic"]) == 1 or not fld
+                                 else f"{entry['topic']}:{fld}")
+    return ChannelSpec(entry["topic"], fld, entry["role"], str(name), _build_symbolizer(entry, where))
+
+
+def _numbers(value: Any, key: str, where: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              for v in value):
+        raise SpecError(f"{where}: `{key}` must be a list of numbers")
+    return tuple(float(v) for v in value)
+
+
+def _positive(value: Any, key: str, where: str, integer: bool = False) -> Any:
+    kind = int if integer else (int, float)
+    if isinstance(value, bool) or not isinstance(value, kind) or value <= 0:
+        raise SpecError(f"{where}: `{key}` must be a positive {'integer' if integer else 'number'}")
+    return value
+
+
+def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
+    kinds = [k for k in ("width", "range", "quantiles") if k in entry]
+    if "edges" in entry and "quantiles" not in entry:
+        kinds.append("edges")
+    if "values" in entry and kinds:
+        raise SpecError(f"{where}: `values` (categorical) cannot be combined with `{kinds[0]}` (bins)")
+    if "values" in entry:
+        values = entry["values"]
+        if not isinstance(values, list) or len(set(map(repr, values))) != len(values):
+            raise SpecError(f"{where}: `values` must be a list of distinct values")
+        return Categorical(tuple(values))
+    if not kinds:
+        stray = [k for k in _BIN_KEYS if k in entry]
+        if stray:
+            raise SpecError(f"{where}: `{stray[0]}` needs one of width, range (+count), edges, quantiles")
+        return Categorical()
+    if len(kinds) > 1:
+        raise SpecError(f"{where}: choose one binning: {' or '.join(kinds)}")
+    return _build_bins(entry, kinds[0], where)
+
+
+def _build_bins(entry: dict, kind: str, where: str) -> Bins:
+    wrap = entry.get("wrap", False)
+    if not isinstance(wrap, bool):
+        raise SpecError(f"{where}: `wrap` must be true or false")
+    if wrap and kind != "range":
+        raise SpecError(f"{where}: `wrap` needs `range` (the period) and `count`")
+    if kind == "width":
+        origin = entry.get("origin", 0.0)
+        if isinstance(origin, bool) or not isinstance(origin, (int, float)):
+            raise SpecError(f"{where}: `origin` must be a number")
+        return Bins(width=float(_positive(entry["width"], "width", where)), origin=float(origin))
+    if kind == "range":
+        lo_hi = _numbers(entry["range"], "range", where)
+        if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1]:
+            raise SpecError(f"{where}: `range` must be [low, high] with low < high")
+        if "count" not in entry:
+            raise SpecError(f"{where}: `range` needs `count`, the number of bins")
+        return Bins(range=lo_hi, count=_positive(entry["count"], "count", where, True), wrap=wrap)
+    if kind == "edges":
+        edges = _numbers(entry["edges"], "edges", where)
+        if not edges or list(edges) != sorted(set(edges)):
+            raise SpecError(f"{where}: `edges` must be a non-empty increasing list")
+        return Bins(edges=edges)
+    fitted = _numbers(entry["edges"], "edges", where) if "edges" in entry else None
+    return Bins(quantiles=_positive(entry["quantiles"], "quantiles", where, True), edges=fitted)
+
+
+# --- CLI shorthand ------------------------------------------------------------------------
+
+def _literal(text: str) -> Any:
+    """``"3"`` -> 3, ``"0.5"`` -> 0.5, ``"true"`` -> True, anything else stays text."""
+    for convert in (int, float):
+        try:
+            return convert(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
+
+
+def parse_channel_option(text: str) -> dict:
+    """Parse ``TOPIC:FIELD:ROLE[:OPTIONS]`` into a spec entry table (see the module doc).
+
+    Raises:
+        SpecError: fewer than three parts or a malformed option.
+    """
+    parts = text.split(":", 3)
+    if len(parts) < 3:
+        raise SpecError(f"--channel {text!r}: expected TOPIC:FIELD:ROLE[:OPTIONS], "
+                        f"e.g. /pointer/command:command:action:values=L;R")
+    entry: dict[str, Any] = {"topic": parts[0], "field": parts[1], "role": parts[2]}
+    for option in (parts[3].split(",") if len(parts) == 4 and parts[3] else []):
+        key, eq, value = option.partition("=")
+        if not eq:
+            raise SpecError(f"--channel {text!r}: option {option!r} must be key=value")
+        items = [_literal(v) for v in value.split(";")]
+        listy = key in ("values", "edges", "range") or len(items) > 1
+        entry[key.strip()] = items if listy else items[0]
+    return entry
+
+
+def spec_from_options(channels: Iterable[str], mode: str = DEFAULT_MODE,
+                      tick_ms: float | None = None) -> Spec:
+    """Build a spec from ``--channel`` shorthands, a mode and an optional tick period."""
+    data: dict[str, Any] = {"mode": mode, "channel": [parse_channel_option(c) for c in channels]}
+    if tick_ms is not None:
+        data["tick_ms"] = tick_ms
+    return _build_spec(data, "--channel options")
+
+
+# --- built-in specs -----------------------------------------------------------------------
+
+POINTER_COMMAND = "/pointer/command"
+POINTER_POSITION = "/pointer/position"
+POINTER_BINS = 36
+
+
+def pointer_spec() -> Spec:
+    """The pointer logs' spec: ``/pointer/command`` (action, ``L``/``R``) and
+    ``/pointer/position`` (observation, labels 1..36), every message an event.
+
+    With a fresh vocabulary the symbols are ``L`` = 0, ``R`` = 1, position ``k`` = ``k + 1``
+    (``/pointer/angle`` is ground truth and not read).
+    """
+    return Spec((
+        ChannelSpec(POINTER_COMMAND, "command", ACTION, POINTER_COMMAND, Categorical(("L", "R"))),
+        ChannelSpec(POINTER_POSITION, "position", OBSERVATION, POINTER_POSITION,
+                    Categorical(tuple(range(1, POINTER_BINS + 1)))),
+    ), mode="message", source="pointer_spec()")
