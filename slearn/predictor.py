@@ -1,0 +1,300 @@
+"""Prediction: what the library says comes next, given the history and the action issued.
+
+The history's suffix (the current observation, the action just issued, and as many
+earlier steps as match) is looked up in the containment index
+(:mod:`slearn.context_index`). Every suffix that occurs inside some library pattern is a
+*candidate context*; its order is the number of whole steps before the current
+observation. Within a context, outcomes rank by weight (the summed counts of the
+patterns that contain it: frequency), then by ``last_seen`` (recency), then by id.
+
+Which context speaks is the scoring rule:
+
+* ``literal`` -- the paper read literally: the longest match wins.
+* ``adaptive`` (default) -- the candidate whose *cell* (order, support bucket) has
+  predicted best so far wins; support buckets are powers of two of the context's total
+  weight, the cell's record an exponential moving average of its hits (rate ``alpha``).
+  A context seen once cannot outvote a short one seen a hundred times unless contexts
+  like it have earned that trust, yet after a change of dynamics (the pointer's command
+  reversal) the fresh long contexts take over as soon as they prove right. Ties go to the
+  longer context, so with no record yet it behaves like ``literal``.
+
+With no candidate at all (the action or current observation never seen in any pattern)
+the predictor abstains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from slearn.hashtrie import child
+from slearn.library import PatternLibrary
+from slearn.tokens import ACTION, OBSERVATION
+
+SCORINGS = ("adaptive", "literal")
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """How candidate contexts are weighed (see the module docstring).
+
+    Args:
+        rule: ``"adaptive"`` or ``"literal"``.
+        alpha: learning rate of the adaptive cells' hit records.
+        buckets: support buckets per order (powers of two of the context weight).
+        prior: the hit record a cell starts from.
+    """
+
+    rule: str = "adaptive"
+    alpha: float = 0.05
+    buckets: int = 8
+    prior: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.rule not in SCORINGS:
+            raise ValueError(f"scoring must be one of {SCORINGS}, not {self.rule!r}")
+
+    @property
+    def code(self) -> int:
+        return SCORINGS.index(self.rule)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A prediction of the next observations.
+
+    Attributes:
+        observations: the predicted observation symbols, ``None`` when abstaining.
+        score: the share of the winning context's weight that backs the prediction.
+        matched_length: whole steps of history matched before the current observation
+            (0 = current observation and action only); -1 when abstaining.
+        ranked: ``(observations, score)`` best first, up to ``top_k``.
+    """
+
+    observations: tuple[int, ...] | None
+    score: float
+    matched_length: int
+    ranked: list[tuple[tuple[int, ...], float]] = field(default_factory=list)
+
+    @property
+    def abstained(self) -> bool:
+        return self.observations is None
+
+
+class Predictor:
+    """Predicts next observations from a :class:`PatternLibrary` (online or frozen)."""
+
+    def __init__(self, library: PatternLibrary, scoring: Scoring | str = "adaptive", top_k: int = 3) -> None:
+        self.library = library
+        self.scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
+        self.top_k = int(top_k)
+        self.cells = np.full(2 * N_CONFIDENCE * library.max_length * self.scoring.buckets, self.scoring.prior)
+
+    def predict(self, history: list[tuple[tuple[int, ...], tuple[int, ...]]],
+                actions: tuple[int, ...]) -> Prediction:
+        """Predict the observations that follow ``actions`` after the steps in ``history``.
+
+        ``history`` is a list of ``(actions, observations)`` steps, oldest first; its last
+        step's observations are the current ones.
+        """
+        tokens = self._context_tokens(history, actions)
+        if tokens is None:
+            return Prediction(None, 0.0, -1)
+        index = self.library.context_index()
+        k = self.top_k
+        cand = np.zeros(self.library.max_length, np.int32)
+        top_tok = np.full(k, -1, np.int32)
+        top_score = np.zeros(k)
+        order = _predict(index, tokens, len(tokens) - 2, tokens[-1], self.library.max_length, cand,
+                         self.cells, self.scoring.code, self.scoring.buckets, top_tok, top_score)
+        if order < 0:
+            return Prediction(None, 0.0, -1)
+        ranked = [(self.library.tokens.symbols(int(t)), float(s)) for t, s in zip(top_tok, top_score) if t >= 0]
+        return Prediction(ranked[0][0], ranked[0][1], int(order), ranked)
+
+    def _context_tokens(self, history, actions) -> np.ndarray | None:
+        table = self.library.tokens
+        action = table.find(ACTION, actions)
+        if action < 0 or not history:
+            return None
+        tokens = [action]
+        for i in range(len(history) - 1, -1, -1):
+            step_actions, step_observations = history[i]
+            obs = table.find(OBSERVATION, step_observations)
+            if obs < 0:
+                break
+            tokens.append(obs)
+            act = table.find(ACTION, step_actions) if i > 0 else -1
+            if act < 0:
+                break
+            tokens.append(act)
+        if len(tokens) % 2 == 1:  # a dangling action before an unknown observation
+            tokens.pop()
+        if len(tokens) < 2:
+            return None
+        return np.asarray(tokens[::-1], np.int32)
+
+
+@numba.njit(cache=True)
+def collect(index, tokens, obs_pos, action, max_orders, cand):
+    """Candidate context nodes, order 0 first: ``tokens[obs_pos]`` is the current observation."""
+    node = child(index.trie, 0, action)
+    n = 0
+    i = obs_pos
+    while node >= 0 and i >= 0 and n < max_orders:
+        node = child(index.trie, node, tokens[i])
+        if node < 0 or index.head[node] == -1:
+            break
+        cand[n] = node
+        n += 1
+        if i == 0:
+            break
+        node = child(index.trie, node, tokens[i - 1])
+        i -= 2
+    return n
+
+
+@numba.njit(cache=True)
+def _better(weight, last, outcome, best_weight, best_last, best_outcome):
+    if weight != best_weight:
+        return weight > best_weight
+    if last != best_last:
+        return last > best_last
+    return outcome < best_outcome
+
+
+@numba.njit(cache=True)
+def best_outcome(index, node):
+    """``(by weight, most recent, total weight)`` outcomes after a context."""
+    best, best_w, best_last, total = -1, np.int64(-1), np.int64(-1), np.int64(0)
+    newest, newest_last = -1, np.int64(-1)
+    e = index.head[node]
+    while e != -1:
+        w, last, o = index.weight[e], index.last_seen[e], index.outcome[e]
+        total += w
+        if _better(w, last, o, best_w, best_last, best):
+            best, best_w, best_last = o, w, last
+        if last > newest_last or (last == newest_last and o < newest):
+            newest, newest_last = o, last
+        e = index.next[e]
+    return best, newest, total, best_w
+
+
+N_CONFIDENCE = 4
+
+
+@numba.njit(cache=True)
+def _cell(order, total, best_w, n_buckets):
+    bucket = 0
+    t = total
+    while t > 1 and bucket < n_buckets - 1:
+        t >>= 1
+        bucket += 1
+    share = best_w / total
+    conf = 0 if share < 0.5 else (1 if share < 0.7 else (2 if share < 0.9 else 3))
+    return 2 * ((order * n_buckets + bucket) * N_CONFIDENCE + conf)
+
+
+@numba.njit(cache=True)
+def select(index, cand, n, cells, rule, n_buckets):
+    """The outcome of the candidate and ranking (weight or recency) that speaks.
+
+    Returns ``(candidate index, outcome)``.
+    """
+    if rule == 1:
+        best, _, _, _ = best_outcome(index, cand[n - 1])
+        return n - 1, best
+    chosen, outcome, chosen_acc = n - 1, -1, -1.0
+    for k in range(n - 1, -1, -1):
+        best, newest, total, best_w = best_outcome(index, cand[k])
+        c = _cell(k, total, best_w, n_buckets)
+        if cells[c] > chosen_acc:
+            chosen, outcome, chosen_acc = k, best, cells[c]
+        if cells[c + 1] > chosen_acc:
+            chosen, outcome, chosen_acc = k, newest, cells[c + 1]
+    return chosen, outcome
+
+
+@numba.njit(cache=True)
+def update_cells(index, cand, n, truth, cells, n_buckets, alpha):
+    """Record, for every candidate's cells, whether its outcomes were ``truth``."""
+    for k in range(n):
+        best, newest, total, best_w = best_outcome(index, cand[k])
+        c = _cell(k, total, best_w, n_buckets)
+        cells[c] += alpha * ((1.0 if best == truth else 0.0) - cells[c])
+        cells[c + 1] += alpha * ((1.0 if newest == truth else 0.0) - cells[c + 1])
+
+
+@numba.njit(cache=True)
+def rank(index, cand, n, chosen, outcome, top_tok, top_score):
+    """Fill the top-k outcomes: ``outcome``, the chosen context's ranking, then the others'."""
+    k = len(top_tok)
+    top_tok[:] = -1
+    top_score[:] = 0.0
+    top_tok[0] = outcome
+    top_score[0] = _share(index, cand[chosen], outcome)
+    filled = 1
+    for pass_ in range(n + 1):
+        if filled >= k:
+            break
+        if pass_ == 0:
+            node = cand[chosen]
+        else:
+            j = n - pass_
+            if j == chosen:
+                continue
+            node = cand[j]
+        filled = _rank_node(index, node, top_tok, top_score, filled)
+
+
+@numba.njit(cache=True)
+def _share(index, node, outcome):
+    total, mine = np.int64(0), np.int64(0)
+    e = index.head[node]
+    while e != -1:
+        total += index.weight[e]
+        if index.outcome[e] == outcome:
+            mine = index.weight[e]
+        e = index.next[e]
+    return mine / total
+
+
+@numba.njit(cache=True)
+def _rank_node(index, node, top_tok, top_score, filled):
+    total = np.int64(0)
+    e = index.head[node]
+    while e != -1:
+        total += index.weight[e]
+        e = index.next[e]
+    k = len(top_tok)
+    while filled < k:
+        best, best_w, best_last = -1, np.int64(-1), np.int64(-1)
+        e = index.head[node]
+        while e != -1:
+            o = index.outcome[e]
+            taken = False
+            for i in range(filled):
+                if top_tok[i] == o:
+                    taken = True
+            if not taken and _better(index.weight[e], index.last_seen[e], o, best_w, best_last, best):
+                best, best_w, best_last = o, index.weight[e], index.last_seen[e]
+            e = index.next[e]
+        if best < 0:
+            break
+        top_tok[filled] = best
+        top_score[filled] = best_w / total
+        filled += 1
+    return filled
+
+
+@numba.njit(cache=True)
+def _predict(index, tokens, obs_pos, action, max_orders, cand, cells, rule, n_buckets, top_tok, top_score):
+    n = collect(index, tokens, obs_pos, action, max_orders, cand)
+    if n == 0:
+        top_tok[:] = -1
+        return -1
+    chosen, outcome = select(index, cand, n, cells, rule, n_buckets)
+    rank(index, cand, n, chosen, outcome, top_tok, top_score)
+    return chosen

@@ -1,0 +1,52 @@
+"""Plain-Python reference models of the core, for property tests."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+
+class NaiveLibrary:
+    """S-learning's rule on a dict of token tuples: pattern -> [count, last_seen]."""
+
+    def __init__(self, max_length: int) -> None:
+        self.max_length = max_length
+        self.patterns: dict[tuple[int, ...], list[int]] = {}
+        self.clock = 0
+
+    def learn(self, tokens: list[int]) -> None:
+        if not tokens:
+            return
+        cur, cur_len = (tokens[0],), 0
+        for step in range(1, (len(tokens) - 1) // 2 + 1):
+            a, o = tokens[2 * step - 1], tokens[2 * step]
+            while True:
+                ext = cur + (a, o)
+                if cur_len < self.max_length and ext in self.patterns:
+                    cur, cur_len = ext, cur_len + 1
+                    break
+                if cur_len > 0:
+                    self.patterns[cur][0] += 1
+                    self.patterns[cur][1] = self.clock
+                if cur_len < self.max_length:
+                    self.patterns[ext] = [1, self.clock]
+                    cur, cur_len = (o,), 0
+                    break
+                cur, cur_len = (cur[-1],), 0
+            self.clock += 1
+        if cur_len > 0:
+            self.patterns[cur][0] += 1
+            self.patterns[cur][1] = self.clock - 1
+
+
+def naive_context_stats(patterns: dict[tuple[int, ...], list[int]], context: tuple[int, ...]):
+    """outcome -> [weight, last_seen] over every occurrence of ``context`` (O A ... O A)
+    at an observation position inside a pattern and followed by an outcome."""
+    stats: dict[int, list[int]] = defaultdict(lambda: [0, -1])
+    n = len(context)
+    for pattern, (count, last_seen) in patterns.items():
+        for start in range(0, len(pattern) - n, 2):
+            if pattern[start:start + n] == context:
+                entry = stats[pattern[start + n]]
+                entry[0] += count
+                entry[1] = max(entry[1], last_seen)
+    return dict(stats)

@@ -1,0 +1,143 @@
+"""Prediction: abstention, the containment index against brute force, scoring rules."""
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from naive import NaiveLibrary, naive_context_stats
+from slearn.library import PatternLibrary
+from slearn.online import run_online
+from slearn.predictor import Predictor, Scoring
+from slearn.stream import Episode
+from test_library import L, R, pointer_episode
+
+POS = 10  # position k is symbol k + 10 (see test_library.pointer_episode)
+
+
+def steps(text: str):
+    return pointer_episode(text).steps()
+
+
+def test_abstains_on_an_empty_library_and_on_unseen_situations():
+    library = PatternLibrary()
+    predictor = Predictor(library)
+    assert predictor.predict(steps("3"), (R,)).abstained
+    library.learn(pointer_episode("3 R 4 R 5"))
+    assert predictor.predict(steps("9"), (R,)).abstained  # never observed 9
+    assert predictor.predict(steps("3"), (99,)).abstained  # never issued this action
+    assert predictor.predict(steps("5"), (R,)).abstained  # 5 R never seen
+    assert predictor.predict([], (R,)).abstained
+
+
+def test_reads_off_what_happened_next():
+    library = PatternLibrary()
+    library.learn(pointer_episode("3 R 4 R 5 L 4 R 5 L 4 L 3 L 2"))
+    prediction = Predictor(library).predict(steps("4"), (L,))
+    assert prediction.observations == (3 + POS,)
+    assert prediction.matched_length == 0
+    # with more history the longer context is found inside a pattern
+    prediction = Predictor(library, "literal").predict(steps("4 R 5"), (L,))
+    assert prediction.observations == (4 + POS,)
+    assert prediction.matched_length == 1
+
+
+def test_frequent_outcome_wins_then_recent_one_breaks_ties():
+    library = PatternLibrary(max_length=1)
+    for text in ("1 R 2", "1 R 2", "1 R 3"):
+        library.learn(pointer_episode(text))
+    predictor = Predictor(library, "literal", top_k=2)
+    prediction = predictor.predict(steps("1"), (R,))
+    assert prediction.observations == (2 + POS,)
+    assert [obs for obs, _ in prediction.ranked] == [(2 + POS,), (3 + POS,)]
+    assert prediction.score == 2 / 3
+    library.learn(pointer_episode("1 R 3"))
+    assert predictor.predict(steps("1"), (R,)).observations == (3 + POS,)  # 2 vs 2: newest wins
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4), st.integers(2, 5))
+def test_literal_prediction_matches_brute_force_over_the_patterns(seed, max_length, n_obs):
+    rng = np.random.default_rng(seed)
+    obs = rng.integers(0, n_obs, 301)
+    act = rng.integers(100, 102, 300)
+    library = PatternLibrary(max_length)
+    naive = NaiveLibrary(max_length)
+    train = Episode.from_pairs(obs[:1], act[:200], obs[1:201])
+    library.learn(train)
+    naive.learn(library.tokens.tokenize(train).tolist())
+    predictor = Predictor(library, "literal")
+    history = Episode.from_pairs(obs[200:201], act[200:], obs[201:]).steps()
+    for t in range(1, len(history) - 1, 7):
+        past, action = history[: t + 1], history[t + 1][0]
+        expected = _brute_force(library, naive.patterns, past, action)
+        got = predictor.predict(past, action)
+        assert (got.observations, got.matched_length) == expected
+
+
+def _brute_force(library, patterns, past, action):
+    table = library.tokens
+    tokens = [table.find(1, action)]
+    for i in range(len(past) - 1, -1, -1):
+        tokens.insert(0, table.find(0, past[i][1]))
+        if i == 0:
+            break
+        tokens.insert(0, table.find(1, past[i][0]))
+    best = (None, -1)
+    for order in range(library.max_length):
+        context = tuple(tokens[len(tokens) - 2 - 2 * order:])
+        if len(context) < 2 + 2 * order or -1 in context:
+            break
+        stats = naive_context_stats(patterns, context)
+        if not stats:
+            break
+        outcome = max(stats, key=lambda o: (stats[o][0], stats[o][1], -o))
+        best = (table.symbols(outcome), order)
+    return best
+
+
+def test_literal_and_adaptive_scoring_are_both_available():
+    assert Scoring().rule == "adaptive"
+    assert Scoring("literal").code == 1
+    try:
+        Scoring("nonsense")
+    except ValueError as err:
+        assert "adaptive" in str(err)
+    else:
+        raise AssertionError("a bad scoring name must be refused")
+
+
+def test_online_loop_is_deterministic_and_learns_a_deterministic_system():
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, 2, 3000)
+    positions = (np.cumsum(np.where(actions == R, 1, -1)) + 100) % 36
+    episode = Episode.from_pairs([POS + 0], actions, positions + POS)
+    results = []
+    for _ in range(2):
+        library = PatternLibrary()
+        results.append(run_online(Predictor(library), episode))
+    first, second = results
+    assert np.array_equal(first.predicted, second.predicted)
+    assert first.abstained[:5].all()  # nothing known at the start
+    assert first.correct[2000:].mean() == 1.0
+    assert (first.top_k_correct(3) >= first.correct).all()
+
+
+def test_frozen_evaluation_leaves_the_library_untouched():
+    library = PatternLibrary()
+    library.learn(pointer_episode("1 R 2 R 3 L 2 L 1 R 2"))
+    before = list(library.iter_patterns())
+    result = run_online(Predictor(library), pointer_episode("1 R 2 R 3 L 2"), learn=False)
+    assert list(library.iter_patterns()) == before
+    assert result.correct.tolist() == [True, True, True]
+
+
+def test_online_prediction_agrees_with_single_predictions():
+    library = PatternLibrary(max_length=3)
+    library.learn(pointer_episode("1 R 2 R 3 L 2 L 1 R 2 R 3 R 4 L 3"))
+    episode = pointer_episode("2 R 3 L 2 R 3 R 4 L 3 L 2")
+    online = run_online(Predictor(library, "literal"), episode, learn=False)
+    single = Predictor(library, "literal")
+    history = episode.steps()
+    for t in range(1, len(history)):
+        got = single.predict(history[:t], history[t][0])
+        expected = None if online.predicted[t - 1] < 0 else library.tokens.symbols(online.predicted[t - 1])
+        assert got.observations == expected
