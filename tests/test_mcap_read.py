@@ -1,0 +1,211 @@
+"""The MCAP reader: log-time order with stable ties, every layout, salvage of broken files."""
+
+from __future__ import annotations
+
+import json
+import tracemalloc
+import warnings
+from pathlib import Path
+
+import pytest
+from mcap.writer import CompressionType, IndexType, Writer
+
+from slearn.errors import InputError, TruncatedLogWarning
+from slearn.mcap_read import McapLog, ReadReport, iter_messages
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+DERIVED = SHARED / "derived"
+PR2_FIRST = "pr2_pr1012_sensors_ros2_first1.0s__"
+
+
+def write_log(path, messages, *, chunk_size=1 << 20, compression=CompressionType.ZSTD,
+              use_chunking=True, index_types=IndexType.ALL, summary=True, repeat=True):
+    """Write ``(topic, log_time_ns, payload dict)`` messages as a JSON MCAP file."""
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=chunk_size, compression=compression,
+                        use_chunking=use_chunking, index_types=index_types,
+                        repeat_channels=repeat, repeat_schemas=repeat,
+                        use_statistics=summary, use_summary_offsets=summary)
+        writer.start(profile="", library="slearn-tests")
+        schema = writer.register_schema("Thing", "jsonschema", b'{"type": "object"}')
+        channels = {}
+        for i, (topic, log_time, payload) in enumerate(messages):
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "json", schema)
+            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time,
+                               sequence=i, data=json.dumps(payload).encode())
+        writer.finish()
+    return Path(path)
+
+
+def read_all(path, **kwargs):
+    return [(m.topic, m.log_time_ns, json.loads(m.data)["i"]) for m in iter_messages(path, **kwargs)]
+
+
+def _shuffled_messages(n=300):
+    # log times jump back and forth across chunk boundaries, with many ties
+    return [("/a" if i % 3 else "/b", (i * 7919) % 50, {"i": i}) for i in range(n)]
+
+
+def _expected(messages):
+    return sorted(((t, p["i"], topic) for topic, t, p in messages), key=lambda e: e[0])
+
+
+@pytest.mark.parametrize("options", [
+    dict(),
+    dict(chunk_size=200),
+    dict(chunk_size=200, compression=CompressionType.LZ4),
+    dict(chunk_size=200, compression=CompressionType.NONE, index_types=IndexType.NONE),
+    dict(chunk_size=200, index_types=IndexType.CHUNK, repeat=False),
+    dict(use_chunking=False, index_types=IndexType.NONE, summary=False, repeat=False),
+], ids=["one-chunk", "small-chunks", "lz4", "no-index", "chunk-index-only", "unchunked"])
+def test_log_time_order_with_ties_in_file_order(tmp_path, options):
+    messages = _shuffled_messages()
+    path = write_log(tmp_path / "x.mcap", messages, **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = [(t, i, topic) for topic, t, i in read_all(path)]
+    assert got == _expected(messages)
+
+
+def test_unchunked_log_larger_than_a_block_is_merged(tmp_path):
+    messages = [("/a", (i * 37) % 1000, {"i": i}) for i in range(10_000)]
+    path = write_log(tmp_path / "x.mcap", messages, use_chunking=False, index_types=IndexType.NONE)
+    assert [(t, i) for _, t, i in read_all(path)] == [(t, i) for t, i, _ in _expected(messages)]
+
+
+def test_topic_filter_and_report(tmp_path):
+    path = write_log(tmp_path / "x.mcap", _shuffled_messages(30))
+    report = ReadReport("")
+    got = read_all(path, topics=["/b"], report=report)
+    assert {topic for topic, _, _ in got} == {"/b"}
+    assert report.n_messages == len(got) == 10
+    assert not report.truncated
+
+
+def test_header_and_channels_known_after_open(tmp_path):
+    path = write_log(tmp_path / "x.mcap", _shuffled_messages(6))
+    with McapLog(path) as log:
+        assert log.library == "slearn-tests"
+        assert sorted(c.topic for c in log.channels.values()) == ["/a", "/b"]
+        channel = next(iter(log.channels.values()))
+        assert (channel.message_encoding, channel.schema_name, channel.schema_encoding) == (
+            "json", "Thing", "jsonschema")
+
+
+def test_channel_defined_in_a_later_opened_chunk(tmp_path):
+    # the channel record lives in chunk 1 (late log times); chunk 2 is earlier in log time
+    # and there are no channels in the summary: its messages must still resolve
+    messages = [("/a", 1000 + i, {"i": i}) for i in range(20)] + [("/a", i, {"i": 100 + i}) for i in range(20)]
+    path = write_log(tmp_path / "x.mcap", messages, chunk_size=300, repeat=False)
+    got = read_all(path)
+    assert [i for _, _, i in got] == list(range(100, 120)) + list(range(20))
+
+
+def test_not_mcap_is_an_input_error(tmp_path):
+    path = tmp_path / "x.mcap"
+    path.write_bytes(b"hello world, not mcap")
+    with pytest.raises(InputError, match="not an MCAP file"):
+        list(iter_messages(path))
+    with pytest.raises(InputError, match="cannot open"):
+        list(iter_messages(tmp_path / "missing.mcap"))
+
+
+@pytest.mark.parametrize("use_chunking", [True, False])
+def test_every_truncation_salvages_a_prefix_and_warns(tmp_path, use_chunking):
+    messages = [("/a", i, {"i": i}) for i in range(200)]
+    full = write_log(tmp_path / "full.mcap", messages, chunk_size=400,
+                     compression=CompressionType.NONE, use_chunking=use_chunking).read_bytes()
+    previous = 0
+    for cut in range(8, len(full), 211):
+        path = tmp_path / "cut.mcap"
+        path.write_bytes(full[:cut])
+        report = ReadReport("")
+        with pytest.warns(TruncatedLogWarning) as caught:
+            got = [i for _, _, i in read_all(path, report=report)]
+        assert got == list(range(len(got)))  # a prefix, in order
+        assert len(got) >= previous
+        previous = len(got)
+        assert report.truncated and report.broken_at <= cut and report.n_messages == len(got)
+        text = str(caught[0].message)
+        assert str(path) in text and f"salvaged {len(got)} messages" in text and "byte" in text
+    assert previous > 150
+
+
+def test_corrupt_chunk_is_skipped_and_reported(tmp_path):
+    messages = [("/a", i, {"i": i}) for i in range(100)]
+    data = bytearray(write_log(tmp_path / "x.mcap", messages, chunk_size=300,
+                               compression=CompressionType.ZSTD).read_bytes())
+    data[400:420] = b"\xff" * 20  # inside the compressed records of an early chunk
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(bytes(data))
+    report = ReadReport("")
+    with pytest.warns(TruncatedLogWarning):
+        got = [i for _, _, i in read_all(path, report=report)]
+    assert 50 < len(got) < 100 and got == sorted(got)
+    assert report.n_skipped_chunks >= 1
+
+
+def test_memory_does_not_grow_with_log_length(tmp_path):
+    messages = [("/a", i, {"i": i, "pad": "x" * 100}) for i in range(30_000)]
+    path = write_log(tmp_path / "big.mcap", messages, chunk_size=64 << 10)
+    tracemalloc.start()
+    count = sum(1 for _ in iter_messages(path))
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert count == 30_000
+    assert peak < 2_000_000  # the payloads alone are ~3.5 MB
+
+
+# --- shared real files ------------------------------------------------------------------
+
+def _conformance_expected(json_path):
+    records = json.loads(json_path.read_text())["records"]
+    messages = []
+    for record in records:
+        if record["type"] == "Message":
+            f = dict(record["fields"])
+            messages.append((int(f["log_time"]), int(f["publish_time"]), int(f["sequence"]),
+                             int(f["channel_id"]), bytes(int(b) for b in f["data"])))
+    return sorted(messages, key=lambda m: m[0])
+
+
+def test_all_conformance_files_yield_exactly_their_messages():
+    folder = SHARED / "conformance"
+    if not folder.is_dir():
+        pytest.skip("../shared/data/mcap/conformance is not available")
+    files = sorted(folder.glob("*/*.json"))
+    assert len(files) == 416
+    for json_path in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            got = [(m.log_time_ns, m.publish_time_ns, m.sequence, m.channel_id, m.data)
+                   for m in iter_messages(json_path.with_suffix(".mcap"))]
+        assert got == _conformance_expected(json_path), json_path.name
+
+
+def _derived(name):
+    path = DERIVED / (PR2_FIRST + name)
+    if not path.exists():
+        pytest.skip(f"{path} is not available")
+    return path
+
+
+@pytest.mark.parametrize("name", ["chunkindex_no_messageindex", "lz4_chunk64k", "unchunked_nosummary",
+                                  "uncompressed_chunk64k", "zstd_chunk16k"])
+def test_derived_layouts_give_the_same_453_messages(name):
+    reference = [(m.log_time_ns, m.topic, m.data) for m in iter_messages(_derived("zstd_chunk16k.mcap"))]
+    got = [(m.log_time_ns, m.topic, m.data) for m in iter_messages(_derived(name + ".mcap"))]
+    assert len(got) == 453
+    assert got == reference
+    assert [t for t, _, _ in got] == sorted(t for t, _, _ in got)
+
+
+@pytest.mark.parametrize("permille, salvaged", [(500, 204), (999, 453)])
+def test_derived_truncated_files_salvage_and_warn(permille, salvaged):
+    path = _derived(f"uncompressed_chunk64k__truncated_{permille}permille.mcap")
+    report = ReadReport("")
+    with pytest.warns(TruncatedLogWarning, match=f"salvaged {salvaged} messages; broke at byte"):
+        count = sum(1 for _ in iter_messages(path, report=report))
+    assert count == report.n_messages == salvaged
+    assert report.truncated and 0 < report.broken_at <= path.stat().st_size
