@@ -321,15 +321,15 @@ def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
     kinds = [k for k in ("width", "range", "quantiles") if k in entry]
     if "edges" in entry and "quantiles" not in entry:
         kinds.append("edges")
-    if "values" in entry and kinds:
-        raise SpecError(f"{where}: `values` (categorical) cannot be combined with `{kinds[0]}` (bins)")
+    stray = [k for k in _BIN_KEYS if k in entry]
+    if "values" in entry and stray:
+        raise SpecError(f"{where}: `values` (categorical) cannot be combined with `{stray[0]}` (bins)")
     if "values" in entry:
         values = entry["values"]
         if not isinstance(values, list) or len(set(map(repr, values))) != len(values):
             raise SpecError(f"{where}: `values` must be a list of distinct values")
         return Categorical(tuple(values))
     if not kinds:
-        stray = [k for k in _BIN_KEYS if k in entry]
         if stray:
             raise SpecError(f"{where}: `{stray[0]}` needs one of width, range (+count), edges, quantiles")
         return Categorical()
