@@ -1,0 +1,127 @@
+"""``slearn info``: text and JSON profiles, spec skeletons, exit codes."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from mcap.writer import CompressionType, Writer
+
+from slearn.cli import EXIT_TRUNCATED, main
+from slearn.info import describe_log, suggest_spec
+from slearn.spec import load_spec
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+
+
+def write_log(path, messages, encodings=None):
+    encodings = encodings or {}
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=1024, compression=CompressionType.NONE)
+        writer.start(profile="", library="slearn-tests")
+        schema = writer.register_schema("Thing", "jsonschema", b"{}")
+        channels = {}
+        for topic, log_time, payload in messages:
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, encodings.get(topic, "json"), schema)
+            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time,
+                               data=json.dumps(payload).encode())
+        writer.finish()
+    return Path(path)
+
+
+@pytest.fixture
+def log(tmp_path):
+    messages = []
+    for i in range(11):  # 10 Hz for one second
+        messages.append(("/cmd", i * 100_000_000, {"command": "LR"[i % 2]}))
+        messages.append(("/state", i * 100_000_000 + 1, {"pose": {"x": i / 4, "ok": True},
+                                                         "name": ["a", "b"], "position": [i, -i]}))
+    messages.append(("/raw", 5, {"v": 1}))
+    return write_log(tmp_path / "log.mcap", messages, encodings={"/raw": "wrong_format"})
+
+
+def run(*args):
+    return CliRunner().invoke(main, ["info", *map(str, args)])
+
+
+def test_text_output(log):
+    result = run(log)
+    assert result.exit_code == 0, result.output
+    out = result.stdout
+    assert "library slearn-tests" in out and "23 messages" in out and "1.000 s" in out
+    assert re.search(r"/cmd\s+Thing\s+json\s+11\s+10\.0 Hz", out)
+    assert "pose.x" in out and "position[name=b]" in out
+    assert "cannot be decoded: no decoder for message encoding 'wrong_format'" in out
+    assert result.stderr == ""
+
+
+def test_json_output(log):
+    result = run("--json", log)
+    assert result.exit_code == 0
+    [doc] = json.loads(result.stdout)["files"]
+    channels = {c["topic"]: c for c in doc["channels"]}
+    assert doc["n_messages"] == 23 and doc["truncated"] is None
+    assert channels["/cmd"]["count"] == 11 and channels["/cmd"]["rate_hz"] == pytest.approx(10.0)
+    fields = {f["path"]: f for f in channels["/state"]["fields"]}
+    assert fields["pose.x"]["examples"] == [0.0, 0.25, 0.5] and fields["pose.x"]["type"] == "float"
+    assert fields["pose.ok"]["type"] == "bool"
+    assert channels["/cmd"]["fields"][0]["examples"] == ["L", "R"]
+    assert channels["/raw"]["decodable"] is False
+
+
+def test_suggest_spec_skeleton_becomes_a_spec(log, tmp_path):
+    target = tmp_path / "spec.toml"
+    assert run(log, "--suggest-spec", target).exit_code == 0
+    text = target.read_text()
+    assert "# topic = \"/state\"" in text and "cannot be decoded" in text
+    block = re.split(r"\n#?\n", text.split("# [[channel]]\n", 1)[1])[0]  # the first entry
+    entry = "[[channel]]\n" + re.sub(r"(?m)^# ", "", block)
+    (tmp_path / "one.toml").write_text(entry)
+    spec = load_spec(tmp_path / "one.toml")
+    assert spec.channels[0].topic == "/cmd" and spec.channels[0].field == "command"
+    refused = run(log, "--suggest-spec", target)
+    assert refused.exit_code == 1 and "exists: use --force" in refused.stderr
+    assert run(log, "--suggest-spec", target, "--force").exit_code == 0
+
+
+def test_truncated_log_exits_3_and_still_reports(log, tmp_path):
+    cut = tmp_path / "cut.mcap"
+    data = log.read_bytes()
+    cut.write_bytes(data[:len(data) * 2 // 3])
+    result = run("--json", cut)
+    assert result.exit_code == EXIT_TRUNCATED
+    doc = json.loads(result.stdout)["files"][0]
+    assert doc["truncated"]["broken_at"] > 0 and doc["n_messages"] > 0
+    assert "truncated or corrupt log: salvaged" in result.stderr and "cut.mcap" in result.stderr
+
+
+def test_bad_inputs_exit_1(tmp_path):
+    not_mcap = tmp_path / "x.mcap"
+    not_mcap.write_text("hello")
+    result = run(not_mcap)
+    assert result.exit_code == 1 and "not an MCAP file" in result.stderr
+    result = run(tmp_path / "lib.parquet")
+    assert result.exit_code == 1 and ".parquet" in result.stderr
+    assert "Traceback" not in result.output
+
+
+def test_suggest_spec_merges_logs(log):
+    text = suggest_spec([describe_log(log), describe_log(log)])
+    assert text.count("# --- /state") == 1
+
+
+def test_real_logs_profile():
+    pr2 = SHARED / "robot" / "ros2_cdr" / "pr2_pr1012_sensors_ros2.mcap"
+    if not pr2.exists():
+        pytest.skip("PR2 log not available")
+    profile = describe_log(pr2)
+    assert profile.profile == "ros2" and profile.n_messages == 6933
+    assert profile.duration_s == pytest.approx(13.45, abs=0.01)
+    counts = {c.topic: c.count for c in profile.channels}
+    assert counts["/joint_states"] == 1325 and counts["/tf"] == 3734
+    joints = next(c for c in profile.channels if c.topic == "/joint_states")
+    assert any(f.path.startswith("position[name=") for f in joints.fields)
