@@ -10,13 +10,17 @@ patterns that contain it: frequency), then by ``last_seen`` (recency), then by i
 Which context speaks is the scoring rule:
 
 * ``literal`` -- the paper read literally: the longest match wins.
-* ``adaptive`` (default) -- the candidate whose *cell* (order, support bucket) has
-  predicted best so far wins; support buckets are powers of two of the context's total
-  weight, the cell's record an exponential moving average of its hits (rate ``alpha``).
-  A context seen once cannot outvote a short one seen a hundred times unless contexts
-  like it have earned that trust, yet after a change of dynamics (the pointer's command
-  reversal) the fresh long contexts take over as soon as they prove right. Ties go to the
-  longer context, so with no record yet it behaves like ``literal``.
+* ``adaptive`` (default) -- every candidate offers two answers, its most frequent
+  outcome and its most recent one. Each answer belongs to a *cell*: (order, support
+  bucket, confidence bucket, frequent-or-recent), where support buckets are powers of
+  two of the context's total weight and confidence buckets the share of its best
+  outcome. A cell keeps an exponential moving average of its hits (rate ``alpha``), and
+  the answer from the best cell speaks. So a context seen once cannot outvote a short
+  one seen a hundred times unless contexts like it have earned that trust (pointer
+  ``error``), yet after a change of dynamics (``reversal``, ``scramble``) the recent
+  outcome and the fresh long contexts take over as soon as they prove right. Ties go to
+  the longer context and to frequency, so with no record yet it behaves like
+  ``literal``.
 
 With no candidate at all (the action or current observation never seen in any pattern)
 the predictor abstains.
@@ -48,7 +52,7 @@ class Scoring:
     """
 
     rule: str = "adaptive"
-    alpha: float = 0.05
+    alpha: float = 0.01
     buckets: int = 8
     prior: float = 0.5
 
