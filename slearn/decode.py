@@ -16,11 +16,14 @@ no sibling ``name``, the first element of ``position`` whose own ``name`` field 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
+
+import numpy as np
 
 from slearn.errors import InputError, SpecError
 from slearn.mcap_read import ChannelInfo
@@ -59,8 +62,37 @@ def _first_line(text: str) -> str:
     return lines[0] if lines else ""
 
 
+_MSG_SEPARATOR = re.compile(r"^={40,}\s*$", re.M)
+
+
+def _ros2_type_name(name: str) -> str:
+    parts = name.strip().split("/")
+    return f"{parts[0]}/msg/{parts[-1]}" if len(parts) == 2 else name.strip()
+
+
+def _rosbags_cdr_decoder(channel: ChannelInfo) -> Decoder:
+    """A ROS 2 CDR decoder from ``rosbags`` (1.5-2x faster than mcap-ros2-support)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    parts = _MSG_SEPARATOR.split(channel.schema.data.decode("utf-8"))
+    name = _ros2_type_name(channel.schema.name)
+    types = dict(get_types_from_msg(parts[0], name))
+    for part in parts[1:]:
+        head, _, body = part.strip("\n").partition("\n")
+        if not head.startswith("MSG:"):
+            raise ValueError(f"unexpected schema section {head!r}")
+        types.update(get_types_from_msg(body, _ros2_type_name(head[4:])))
+    store = get_typestore(Stores.EMPTY)  # one store per channel: type versions cannot clash
+    store.register(types)
+    deserialize = store.deserialize_cdr
+    return lambda data: deserialize(data, name)
+
+
 def make_decoder(channel: ChannelInfo) -> Decoder:
     """Build the payload decoder of one channel.
+
+    ROS 2 ``ros2msg`` channels use ``rosbags`` when it parses the schema, else
+    mcap-ros2-support (whose error is the one reported when both fail).
 
     Raises:
         DecodeError: no decoder exists for the channel's encodings, or building it failed;
@@ -68,6 +100,12 @@ def make_decoder(channel: ChannelInfo) -> Decoder:
     """
     if channel.message_encoding == "json":
         return json.loads
+    if channel.message_encoding == "cdr" and channel.schema_encoding == "ros2msg":
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                return _rosbags_cdr_decoder(channel)
+        except Exception:  # noqa: BLE001 - fall back to mcap-ros2-support below
+            pass
     factory = _factory_for(channel.message_encoding)
     if factory is None:
         raise DecodeError(f"no decoder for message encoding {channel.message_encoding!r} "
@@ -192,6 +230,9 @@ def field_names(obj: Any) -> list[str]:
     descriptor = getattr(obj, "DESCRIPTOR", None)
     if descriptor is not None and hasattr(descriptor, "fields"):
         return [f.name for f in descriptor.fields]
+    if dataclasses.is_dataclass(obj):  # rosbags messages; skip its type tag and constants
+        return [f.name for f in dataclasses.fields(obj)
+                if not f.name.startswith("_") and not f.name.isupper()]
     slots = getattr(type(obj), "__slots__", None)
     if slots:
         return list(slots)
@@ -237,7 +278,9 @@ class FieldPath:
                 if found is MISSING:
                     return MISSING
                 parent, value = None, found
-        return value
+        if isinstance(value, np.generic):
+            return value.item()
+        return value.tolist() if isinstance(value, np.ndarray) else value
 
     def _match(self, parent: Any, seq: Any, key: str, wanted: str) -> Any:
         if not _is_sequence(seq):
@@ -263,7 +306,11 @@ class FieldPath:
 # --- scalar fields (for ``slearn info``) ----------------------------------------------
 
 def _is_scalar(value: Any) -> bool:
-    return isinstance(value, (bool, int, float, str))
+    return isinstance(value, (bool, int, float, str, np.generic))
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def _sequence_fields(obj: Any, name: str, seq: Any, path: str, depth: int,
@@ -275,10 +322,10 @@ def _sequence_fields(obj: Any, name: str, seq: Any, path: str, depth: int,
                                             else getattr(obj, "name", None))
         if keys is not None and _is_sequence(keys) and len(keys) == len(seq) and len(keys):
             for key, value in list(zip(keys, seq))[:max_items]:
-                yield f"{path}[name={key}]", value
+                yield f"{path}[name={key}]", _plain(value)
         else:
             for i in range(min(len(seq), max_items)):
-                yield f"{path}[{i}]", seq[i]
+                yield f"{path}[{i}]", _plain(seq[i])
     elif not isinstance(seq[0], (bytes, bytearray)):
         yield from iter_scalar_fields(seq[0], f"{path}[0]", depth + 1, max_items)
 
@@ -293,7 +340,7 @@ def iter_scalar_fields(obj: Any, prefix: str = "", depth: int = 0,
     if depth > 8:
         return
     if _is_scalar(obj):
-        yield prefix, obj
+        yield prefix, _plain(obj)
         return
     for name in field_names(obj):
         try:
@@ -302,7 +349,9 @@ def iter_scalar_fields(obj: Any, prefix: str = "", depth: int = 0,
             continue
         path = f"{prefix}.{name}" if prefix else name
         if _is_scalar(value):
-            yield path, value
+            yield path, _plain(value)
+        elif isinstance(value, np.ndarray) and value.dtype == np.uint8:
+            continue  # raw bytes (images, blobs), as mcap-ros2-support returns them
         elif _is_sequence(value):
             yield from _sequence_fields(obj, name, value, path, depth, max_items)
         elif value is not None and not isinstance(value, (bytes, bytearray)):

@@ -165,3 +165,31 @@ def test_protobuf_and_ros1_decode():
     message = next(m for m in iter_messages(ros1, topics=["/joint_states"]))
     obj = decode_payload(DecoderCache().require(message.channel), message.channel, message.data)
     assert isinstance(parse_field_path("position[name=r_shoulder_pan_joint]").get(obj), float)
+
+
+def _both_ros2_decoders(channel):
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    from slearn.decode import _rosbags_cdr_decoder
+    s = channel.schema
+    slow = DecoderFactory().decoder_for("cdr", Schema(id=s.id, name=s.name, encoding=s.encoding, data=s.data))
+    return _rosbags_cdr_decoder(channel), slow
+
+
+def test_rosbags_and_mcap_ros2_agree(tmp_path):
+    logs = [write_joint_states(tmp_path / "j.mcap", [[0.5, -1.25, 3.0], [0.0, 2.0, 1.0]])]
+    pr2 = SHARED / "robot" / "ros2_cdr" / "pr2_pr1012_sensors_ros2.mcap"
+    logs += [pr2] if pr2.exists() else []
+    compared = 0
+    for path in logs:
+        decoders = {}
+        for message in iter_messages(path):
+            if message.channel.id not in decoders:
+                decoders[message.channel.id] = _both_ros2_decoders(message.channel)
+            fast, slow = decoders[message.channel.id]
+            if compared % 7 == 0:  # a sample keeps this quick
+                assert dict(iter_scalar_fields(fast(message.data), max_items=100)) == dict(
+                    iter_scalar_fields(slow(message.data), max_items=100))
+            compared += 1
+    assert compared >= 2
