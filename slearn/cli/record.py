@@ -9,7 +9,10 @@ import click
 
 from slearn.errors import InputError
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
+from slearn.recorders.live import spec_toml
 from slearn.recorders.record_pointer import RecordSummary, record_pointer
+from slearn.recorders.stream import (DEFAULT_CHANNEL, FORMATS, TICK_NS, StreamSummary,
+                                     convert_stream, stream_spec)
 
 
 @click.group(name="record")
@@ -46,3 +49,54 @@ def _summary_line(summary: RecordSummary) -> str:
     messages = sum(summary.messages.values())
     return (f"wrote {summary.path}: pointer {summary.condition}, seed {summary.seed}, "
             f"{summary.trials} trials, {messages} messages, {summary.size_bytes / 1024:.0f} KiB")
+
+
+def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
+    roles = {}
+    for option in options:
+        name, eq, role = option.rpartition("=")
+        if not eq or not name:
+            raise InputError(f"--role {option!r}: expected CHANNEL=ROLE, e.g. cmd=action")
+        roles[name] = role
+    return roles
+
+
+@command.command("stream")
+@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="The MCAP file (numbered STEM-00000.mcap... for several episodes), "
+                   "or an existing folder.")
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True,
+              help="Input format.")
+@click.option("--per-file", is_flag=True, help="Make the whole file one episode.")
+@click.option("--role", "roles", multiple=True, metavar="CHANNEL=ROLE",
+              help="Role of a channel: action or observation (default observation). Repeatable.")
+@click.option("--channel", default=DEFAULT_CHANNEL, show_default=True,
+              help="Channel of tokens written without NAME=.")
+@click.option("--tick-ms", type=click.FloatRange(min=0, min_open=True), default=TICK_NS / 1e6,
+              show_default=True, help="Log time between ticks of token and SPMF sequences.")
+@click.option("--spec-out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Also write the TOML spec that learns the output.")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
+def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[str, ...],
+           channel: str, tick_ms: float, spec_out: Path | None, force: bool,
+           as_json: bool) -> None:
+    """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into MCAP episodes."""
+    if spec_out is not None and spec_out.exists() and not force:
+        raise InputError(f"{spec_out} already exists: pass --force to overwrite it")
+    summary = convert_stream(source, output, fmt=fmt, per_file=per_file,
+                             roles=_parse_roles(roles), channel=channel,
+                             tick_ns=round(tick_ms * 1e6), overwrite=force)
+    if spec_out is not None:
+        spec_out.write_text(spec_toml(stream_spec(summary), f"spec for {source.name}"),
+                            encoding="utf-8")
+    click.echo(json.dumps(summary.to_dict()) if as_json else _stream_line(summary))
+
+
+def _stream_line(summary: StreamSummary) -> str:
+    where = summary.paths[0] if len(summary.paths) == 1 else \
+        f"{len(summary.paths)} episodes ({summary.paths[0]} ... {summary.paths[-1]})"
+    channels = ", ".join(f"{name} ({role})" for name, role in summary.channels.items())
+    return (f"wrote {where}: {summary.format}, {summary.events} events on {channels}, "
+            f"{summary.size_bytes / 1024:.0f} KiB")

@@ -1,0 +1,151 @@
+"""recorders.stream and ``slearn record stream``: formats, episodes, roles, errors."""
+
+import json
+
+import pytest
+from click.testing import CliRunner
+from mcap.reader import make_reader
+
+from slearn.cli import main
+from slearn.errors import InputError
+from slearn.library import PatternLibrary
+from slearn.online import run_online
+from slearn.predictor import Predictor
+from slearn.recorders.stream import convert_stream, detect_format, stream_spec
+from slearn.serialize import read_episodes
+from slearn.spec import load_spec
+from slearn.vocabulary import Vocabulary
+
+
+def _steps(paths, spec):
+    vocabulary = Vocabulary()
+    out = []
+    for _, episode, _ in read_episodes(paths, spec, vocabulary):
+        out.append([([vocabulary.name(a)[1] for a in acts], [vocabulary.name(o)[1] for o in obs])
+                    for acts, obs in episode.steps()])
+    return out
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _metadata(path):
+    with open(path, "rb") as f:
+        return {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+
+
+def test_tokens_one_episode_per_line_with_named_channels_and_roles(tmp_path):
+    src = _write(tmp_path, "seq.txt", "# pointer\npos=3 cmd=R pos=4 cmd=L pos=3\n\npos=1 cmd=L pos=36\n")
+    summary = convert_stream(src, tmp_path / "out.mcap", roles={"cmd": "action"})
+    assert summary.format == "tokens"
+    assert summary.paths == [str(tmp_path / "out-00000.mcap"), str(tmp_path / "out-00001.mcap")]
+    assert summary.channels == {"pos": "observation", "cmd": "action"}
+    assert _steps(summary.paths, stream_spec(summary)) == [
+        [([], [3]), (["R"], [4]), (["L"], [3])],
+        [([], [1]), (["L"], [36])]]
+    assert _metadata(summary.paths[1])["slearn.stream"]["first_line"] == "4"
+
+
+def test_per_file_makes_one_episode_that_continues_in_time(tmp_path):
+    src = _write(tmp_path, "seq.txt", "a b\nc\n")
+    summary = convert_stream(src, tmp_path / "one.mcap", per_file=True)
+    assert summary.paths == [str(tmp_path / "one.mcap")]
+    assert _steps(summary.paths, stream_spec(summary)) == [[([], ["a"]), ([], ["b"]), ([], ["c"])]]
+
+
+def test_spmf_itemsets_share_a_tick_and_item_names_apply(tmp_path):
+    src = _write(tmp_path, "db.spmf", "@CONVERTED_FROM_TEXT\n@ITEM=1=cmd=R\n"
+                 "2 -1 1 -1 3 4 -1 -2\n5 -1 <7> 6 -1 -2\n")
+    assert detect_format(src) == "spmf"
+    summary = convert_stream(src, tmp_path / "db.mcap", roles={"cmd": "action"})
+    assert len(summary.paths) == 2
+    spec = stream_spec(summary)
+    first, second = _steps(summary.paths[:1], spec), _steps(summary.paths[1:], spec)
+    assert first == [[([], [2]), (["R"], [3, 4])]]
+    assert second == [[([], [5]), ([], [6])]]
+
+
+def test_spmf_without_final_separator_names_the_line(tmp_path):
+    src = _write(tmp_path, "db.txt", "1 -1 -2\n2 -1 3\n")
+    with pytest.raises(InputError, match=r"db.txt:2: .*-2"):
+        convert_stream(src, tmp_path / "x.mcap")
+
+
+def test_csv_episodes_roles_and_numeric_values(tmp_path):
+    src = _write(tmp_path, "log.csv", "time,channel,value,role,episode\n"
+                 "0,pos,3,observation,a\n0.1,cmd,R,action,a\n0.15,pos,4,,a\n"
+                 "0,pos,0.5,,b\n")
+    summary = convert_stream(src, tmp_path / "log.mcap")
+    assert summary.channels == {"pos": "observation", "cmd": "action"}
+    assert _steps(summary.paths, stream_spec(summary)) == [[([], [3]), (["R"], [4])], [([], [0.5])]]
+
+
+def test_jsonl_with_time_ns(tmp_path):
+    rows = [{"time_ns": 0, "channel": "/s", "value": True},
+            {"time_ns": 5, "channel": "/c", "value": "go", "role": "action"},
+            {"time_ns": 9, "channel": "/s", "value": False}]
+    src = _write(tmp_path, "ev.jsonl", "\n".join(json.dumps(r) for r in rows) + "\n")
+    summary = convert_stream(src, tmp_path / "ev.mcap")
+    assert summary.format == "jsonl" and summary.paths == [str(tmp_path / "ev.mcap")]
+    assert _steps(summary.paths, stream_spec(summary)) == [[([], [True]), (["go"], [False])]]
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("bad.csv", "time,channel\n0,a\n", r"bad.csv:1: missing value"),
+    ("bad.csv", "time,channel,value\n0,a,1\nx,a,2\n", r"bad.csv:3: time 'x' is not a number"),
+    ("bad.csv", "time,channel,value\n0,a\n", r"bad.csv:2: 2 fields"),
+    ("bad.csv", "time,channel,value\n-1,a,1\n", r"bad.csv:2: time .* out of range"),
+    ("bad.jsonl", '{"time": 0, "channel": "a", "value": 1}\n{oops\n', r"bad.jsonl:2: not JSON"),
+    ("bad.jsonl", '{"time": 0, "channel": "a", "value": [1]}\n', r"bad.jsonl:1: .*list"),
+    ("bad.jsonl", '{"time": 0, "channel": "a", "value": 1, "role": "x"}\n', r"bad.jsonl:1: role"),
+    ("bad.csv", "time,channel,value,role\n0,a,1,action\n1,a,2,observation\n",
+     r"bad.csv:3: channel 'a' is observation here but action on line 2"),
+    ("empty.txt", "\n# nothing\n", r"no events found"),
+])
+def test_malformed_input_names_the_line(tmp_path, name, text, message):
+    with pytest.raises(InputError, match=message):
+        convert_stream(_write(tmp_path, name, text), tmp_path / "o.mcap")
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_existing_outputs_are_refused_before_anything_is_written(tmp_path):
+    src = _write(tmp_path, "s.txt", "a\nb\n")
+    (tmp_path / "o-00001.mcap").write_bytes(b"keep")
+    with pytest.raises(InputError, match="already exists"):
+        convert_stream(src, tmp_path / "o.mcap")
+    assert not (tmp_path / "o-00000.mcap").exists()
+    convert_stream(src, tmp_path / "o.mcap", overwrite=True)
+    assert (tmp_path / "o-00001.mcap").read_bytes() != b"keep"
+
+
+def test_role_option_for_an_unknown_channel_is_an_error(tmp_path):
+    with pytest.raises(InputError, match="'cmd', which has no event"):
+        convert_stream(_write(tmp_path, "s.txt", "a b\n"), tmp_path / "o.mcap",
+                       roles={"cmd": "action"})
+
+
+def test_cli_writes_files_spec_and_json_summary(tmp_path):
+    src = _write(tmp_path, "walk.txt", " ".join(f"pos={i % 5} cmd=R" for i in range(40)) + " pos=0\n")
+    spec_path = tmp_path / "walk.toml"
+    args = ["record", "stream", str(src), "-o", str(tmp_path / "walk.mcap"), "--role",
+            "cmd=action", "--spec-out", str(spec_path), "--json"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["channels"] == {"pos": "observation", "cmd": "action"}
+    library = PatternLibrary()
+    [(_, episode, _)] = read_episodes(summary["paths"], load_spec(spec_path), Vocabulary())
+    assert run_online(Predictor(library), episode).correct[-20:].all()
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code == 1 and "already exists: pass --force" in again.stderr
+    assert CliRunner().invoke(main, args + ["--force"]).exit_code == 0
+
+
+def test_cli_malformed_line_is_one_line_on_stderr(tmp_path):
+    src = _write(tmp_path, "x.csv", "time,channel,value\n0,a,\n")
+    result = CliRunner().invoke(main, ["record", "stream", str(src), "-o", str(tmp_path / "x.mcap")])
+    assert result.exit_code == 1 and result.stdout == ""
+    assert result.stderr.strip() == f"slearn: error: {src}:2: channel 'a' has no value"
