@@ -45,6 +45,19 @@ def _render(profile: LogProfile, show_fields: bool) -> str:
     return "\n".join(lines)
 
 
+def _as_dict(result) -> dict:
+    return result.to_dict() if hasattr(result, "to_dict") else result
+
+
+def _as_text(result, show_fields: bool) -> str:
+    # libraries (slearn.storage.describe) may bring their own text rendering
+    if isinstance(result, LogProfile):
+        return _render(result, show_fields)
+    if hasattr(result, "render"):
+        return result.render()
+    return json.dumps(_as_dict(result), indent=2, default=str)
+
+
 def _write_new(path: str, text: str, force: bool) -> None:
     target = Path(path)
     if target.exists() and not force:
@@ -67,16 +80,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
             spec_out: str | None, force: bool) -> None:
     """Show profile, duration, channels, counts, rates and fields of MCAP logs.
 
-    Exits 3 when a log is truncated (what could be read is still shown).
+    Exits 3 when a log is truncated (what could be read is still shown). Pattern
+    libraries (.parquet) are described by slearn.storage once it exists.
     """
     results = [describe(path) for path in paths]
     logs = [r for r in results if isinstance(r, LogProfile)]
     if as_json:
-        docs = [r.to_dict() if isinstance(r, LogProfile) else r for r in results]
-        click.echo(json.dumps({"files": docs}, indent=2, default=str))
+        click.echo(json.dumps({"files": [_as_dict(r) for r in results]}, indent=2, default=str))
     else:
-        click.echo("\n\n".join(_render(r, fields) if isinstance(r, LogProfile)
-                               else json.dumps(r, indent=2, default=str) for r in results))
+        click.echo("\n\n".join(_as_text(r, fields) for r in results))
     if spec_out:
         _write_new(spec_out, suggest_spec(logs), force)
         click.echo(f"slearn: wrote spec skeleton {spec_out}", err=True)
