@@ -40,7 +40,7 @@ import numpy as np
 from slearn.decode import MISSING, DecodeError, DecoderCache, FieldPath, FieldPathError, decode_payload
 from slearn.errors import InputError, SpecError
 from slearn.mcap_read import McapLog, ReadReport
-from slearn.spec import Bins, ChannelSpec, Spec
+from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec
 from slearn.stream import Episode
 from slearn.vocabulary import ACTION, Vocabulary
 
@@ -315,6 +315,31 @@ def _warn_if_truncated(report: ReadReport) -> None:
 
         from slearn.errors import TruncatedLogWarning
         warnings.warn(TruncatedLogWarning(report.describe()), stacklevel=3)
+
+
+def _log_topics(path: str | os.PathLike, wanted: set[str]) -> set[str]:
+    with McapLog(path) as log:
+        topics = {c.topic for c in log.channels.values()}
+        for message in log.iter_messages():  # channels defined inside chunks only
+            if wanted <= topics:
+                break
+            topics.add(message.topic)
+    return topics
+
+
+def default_spec(paths: Iterable[str | os.PathLike]) -> Spec:
+    """The spec to use when none was given: :func:`~slearn.spec.pointer_spec` for pointer logs.
+
+    Raises:
+        SpecError: the first log is not a pointer log; the message says how to get a spec.
+    """
+    paths = list(paths)
+    wanted = {POINTER_COMMAND, POINTER_POSITION}
+    if paths and wanted <= _log_topics(paths[0], wanted):
+        return pointer_spec()
+    raise SpecError(f"{os.fspath(paths[0]) if paths else 'no logs'}: not a pointer log, so there is "
+                    f"no default spec: give --spec FILE (start from `slearn info LOG "
+                    f"--suggest-spec spec.toml`) or --channel TOPIC:FIELD:ROLE")
 
 
 # --- fitting ----------------------------------------------------------------------------

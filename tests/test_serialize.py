@@ -234,3 +234,12 @@ def test_rosbag2_service_events_and_wrong_format_are_clear_errors():
     wrong_spec = Spec.from_dict({"channel": [{"topic": "/test_topic", "field": "int8_value", "role": "observation"}]})
     with pytest.raises(SpecError, match="'/test_topic'.*wrong_format"):
         episodes([wrong], wrong_spec)
+
+
+def test_default_spec_is_the_pointer_spec_for_pointer_logs(tmp_path):
+    from slearn.serialize import default_spec
+    pointer = write_log(tmp_path / "p.mcap", pointer_messages("R", [1, 2]))
+    assert default_spec([pointer]) == pointer_spec()
+    other = write_log(tmp_path / "o.mcap", MODES_LOG)
+    with pytest.raises(SpecError, match="o.mcap: not a pointer log.*--suggest-spec"):
+        default_spec([other])

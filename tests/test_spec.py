@@ -174,3 +174,16 @@ def test_errors_name_file_and_entry(tmp_path, text, message):
 def test_missing_file(tmp_path):
     with pytest.raises(SpecError, match="cannot read spec"):
         load_spec(tmp_path / "none.toml")
+
+
+def test_resolve_spec(tmp_path):
+    from slearn.spec import resolve_spec
+    assert resolve_spec() is None
+    path = _write(tmp_path, GOOD)
+    assert resolve_spec(path).mode == "tick"
+    overridden = resolve_spec(path, mode="message")
+    assert overridden.mode == "message" and overridden.channels == load_spec(path).channels
+    assert resolve_spec(path, tick_ms=10).tick_ns == 10_000_000
+    assert resolve_spec(None, ["/t:x:action"]).channels[0].role == "action"
+    with pytest.raises(SpecError, match="not both"):
+        resolve_spec(path, ["/t:x:action"])
