@@ -83,6 +83,12 @@ class TokenTable:
         values = np.asarray(symbols, dtype=np.int32)
         return int(_find(self.arrays, kind, values, 0, len(values), _hash(kind, values, 0, len(values))))
 
+    def find_all(self, kinds: np.ndarray, symbols: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Tokens of many tuples at once (compiled): tuple ``i`` is ``(kinds[i],
+        symbols[offsets[i]:offsets[i + 1]])``; -1 where a tuple was never interned."""
+        return _find_all(self.arrays, np.asarray(kinds, np.int8), np.asarray(symbols, np.int32),
+                         np.asarray(offsets, np.int64))
+
     def symbols(self, token: int) -> tuple[int, ...]:
         """The symbols of a token."""
         a = self.arrays
@@ -139,6 +145,15 @@ def _find(a, kind, values, start, end, h):
             if same:
                 return t
         s = (s + 1) & mask
+
+
+@numba.njit(cache=True)
+def _find_all(a, kinds, symbols, offsets):
+    out = np.empty(len(kinds), np.int32)
+    for i in range(len(kinds)):
+        start, end = offsets[i], offsets[i + 1]
+        out[i] = _find(a, kinds[i], symbols, start, end, _hash(kinds[i], symbols, start, end))
+    return out
 
 
 @numba.njit(cache=True)
