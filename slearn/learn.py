@@ -1,0 +1,233 @@
+"""The learning job: MCAP logs in, a saved pattern library out.
+
+Each log is one episode (episodes are never glued together). The spec is the one given,
+or the pointer's for pointer logs; quantile bins are fitted on the training logs before
+learning. ``resume`` goes on learning from a saved library with its own spec, vocabulary
+and parameters, so learning ``A`` then resuming on ``B`` writes the same bytes as learning
+``A B`` in one run.
+
+Provenance: slearn version, every input log (path as given, size, sha256; a resumed
+library's inputs come first) and a time. The time is never the wall clock, so that the
+same inputs give the same file: it is ``SOURCE_DATE_EPOCH`` when set, else the newest
+modification time (whole seconds) among all inputs.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+
+from slearn import __version__
+from slearn.errors import InputError, SpecError
+from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.mcap_read import McapLog, ReadReport
+from slearn.serialize import fit_spec, read_episodes
+from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
+from slearn.storage import check_output, file_record, load_library, save_library
+from slearn.vocabulary import Vocabulary
+
+SCORING_RULES = ("adaptive", "literal")
+DEFAULT_SCORING = "adaptive"
+_SNIFF_MESSAGES = 1000  # messages read to find the topics of a log without a summary
+
+
+@dataclass
+class LearnResult:
+    """What one learning job did and wrote."""
+
+    output: str
+    n_patterns: int
+    size_bytes: int
+    n_events: int = 0
+    n_steps: int = 0
+    n_episodes: int = 0
+    seconds: float = 0.0
+    clock: int = 0
+    forgotten: int = 0
+    n_symbols: int = 0
+    resumed_from: str | None = None
+    truncated: list[ReadReport] = field(default_factory=list)
+
+    @property
+    def bytes_per_pattern(self) -> float:
+        """File bytes per pattern (0 for an empty library)."""
+        return self.size_bytes / self.n_patterns if self.n_patterns else 0.0
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able data."""
+        return {"output": self.output, "patterns": self.n_patterns, "bytes": self.size_bytes,
+                "bytes_per_pattern": self.bytes_per_pattern, "events": self.n_events,
+                "steps": self.n_steps, "episodes": self.n_episodes, "seconds": self.seconds,
+                "clock": self.clock, "forgotten": self.forgotten, "symbols": self.n_symbols,
+                "resumed_from": self.resumed_from,
+                "truncated": [r.describe() for r in self.truncated]}
+
+
+@dataclass
+class _Job:
+    library: PatternLibrary
+    vocabulary: Vocabulary
+    spec: Spec
+    params: dict
+    provenance: dict | None = None
+
+
+def expand_paths(patterns: list[str]) -> list[str]:
+    """Logs as given; an argument that is not a file but a glob pattern is expanded (sorted).
+
+    Raises:
+        InputError: a file does not exist and no file matches it as a pattern.
+    """
+    paths: list[str] = []
+    for pattern in patterns:
+        if os.path.exists(pattern) or not glob.has_magic(pattern):
+            paths.append(pattern)
+            continue
+        matches = sorted(glob.glob(pattern))
+        if not matches:
+            raise InputError(f"{pattern}: no file matches")
+        paths += matches
+    for path in paths:
+        if not os.path.isfile(path):
+            raise InputError(f"{path}: no such log file")
+    return paths
+
+
+def log_topics(path: str) -> set[str]:
+    """Topics of a log: from its channel records, else from its first messages."""
+    with McapLog(path) as log:
+        topics = {c.topic for c in log.channels.values()}
+        if not topics:
+            for i, message in enumerate(log.iter_messages()):
+                topics.add(message.topic)
+                if i >= _SNIFF_MESSAGES:
+                    break
+    return topics
+
+
+def default_spec(path: str) -> Spec:
+    """The pointer spec for pointer logs.
+
+    Raises:
+        SpecError: the log is not a pointer log, so a spec is needed.
+    """
+    topics = log_topics(path)
+    if {POINTER_COMMAND, POINTER_POSITION} <= topics:
+        return pointer_spec()
+    shown = ", ".join(sorted(topics)[:8]) or "none"
+    raise SpecError(f"{path}: not a pointer log (topics: {shown}): pass --spec FILE or --channel "
+                    f"(`slearn info {path} --suggest-spec spec.toml` writes a skeleton)")
+
+
+def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
+             max_patterns: int | None, scoring: str | None, progress: bool) -> _Job:
+    spec = spec if spec is not None else default_spec(paths[0])
+    spec = fit_spec(spec, paths, progress)
+    try:
+        library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns)
+    except ValueError as err:
+        raise InputError(f"learner parameters: {err}") from err
+    return _Job(library, Vocabulary(), spec, {"scoring": scoring or DEFAULT_SCORING})
+
+
+def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
+                 max_patterns: int | None, scoring: str | None) -> _Job:
+    loaded = load_library(resume)
+    if spec is not None and loaded.spec is not None:
+        raise SpecError(f"{resume}: --resume learns with the library's own spec (bins fitted "
+                        f"on its logs): leave out --spec and --channel")
+    if loaded.spec is None and spec is None:
+        raise SpecError(f"{resume}: this library has no spec: pass --spec to go on learning")
+    library = loaded.library
+    if max_length is not None and max_length != library.max_length:
+        raise InputError(f"{resume}: learned with max length {library.max_length}; "
+                         f"--resume keeps it (leave out --max-length)")
+    if max_patterns is not None:
+        library.max_patterns = max_patterns
+    params = {**loaded.params, "scoring": scoring or loaded.params.get("scoring", DEFAULT_SCORING)}
+    return _Job(library, loaded.vocabulary, loaded.spec or spec, params, loaded.provenance)
+
+
+def _check_scoring(scoring: str | None) -> None:
+    if scoring is not None and scoring not in SCORING_RULES:
+        raise InputError(f"scoring must be one of {', '.join(SCORING_RULES)}, not {scoring!r}")
+
+
+def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
+                spec: Spec | None = None, resume: str | os.PathLike | None = None,
+                max_length: int | None = None, max_patterns: int | None = None,
+                scoring: str | None = None, overwrite: bool = False,
+                progress: bool = False) -> LearnResult:
+    """Learn each log as an episode and save the library to ``output`` (atomically).
+
+    Args:
+        paths: MCAP logs, learned in this order.
+        output: the library file (Parquet) to write.
+        spec: the channel spec; ``None`` uses the pointer's for pointer logs.
+        resume: a saved library to go on learning from (its spec, vocabulary, parameters).
+        max_length: longest pattern in steps (default 5); fixed when resuming.
+        max_patterns: forgetting bound (default none).
+        scoring: ``adaptive`` or ``literal``, stored for predictors.
+        overwrite: replace an existing ``output``.
+        progress: show progress on stderr.
+
+    A truncated log is learned as far as it could be read; it is listed in the result's
+    ``truncated`` (and warned about), and the library is still saved.
+
+    Raises:
+        InputError: missing logs, an existing output without ``overwrite``, bad parameters.
+        SpecError: the spec does not fit a log, or no spec for a log that is not a pointer log.
+        LibraryFormatError: ``resume`` is not a readable library.
+    """
+    start = time.perf_counter()
+    paths = [os.fspath(p) for p in paths]
+    if not paths:
+        raise InputError("no logs to learn from")
+    check_output(output, overwrite)
+    _check_scoring(scoring)
+    job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
+           else _new_job(paths, spec, max_length, max_patterns, scoring, progress))
+    result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
+    _learn_episodes(job, paths, result, progress)
+    saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
+                         provenance=build_provenance(paths, job.provenance), overwrite=overwrite)
+    result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
+    result.clock, result.forgotten = job.library.clock, job.library.forgotten
+    result.n_symbols, result.seconds = len(job.vocabulary), time.perf_counter() - start
+    return result
+
+
+def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool) -> None:
+    for _, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress):
+        job.library.learn(episode)
+        result.n_episodes += 1
+        result.n_steps += len(episode)
+        result.n_events += episode.n_events
+        if report.truncated:
+            result.truncated.append(report)
+
+
+def build_provenance(paths: list[str], previous: dict | None = None) -> dict:
+    """Provenance of a library learned from ``paths`` (after ``previous``'s inputs, if any).
+
+    Raises:
+        InputError: a log cannot be read, or ``SOURCE_DATE_EPOCH`` is not an integer.
+    """
+    inputs = list(previous["inputs"]) if previous else []
+    inputs += [file_record(p) for p in paths]
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if epoch is not None:
+        try:
+            stamp, source = int(epoch), "SOURCE_DATE_EPOCH"
+        except ValueError as err:
+            raise InputError(f"SOURCE_DATE_EPOCH must be an integer, not {epoch!r}") from err
+    else:
+        times = [int(os.stat(p).st_mtime) for p in paths]
+        stamp = max(times + ([int(previous.get("time_unix", 0))] if previous else []))
+        source = "newest input mtime"
+    return {"slearn_version": __version__, "inputs": inputs, "time_unix": stamp,
+            "time": datetime.fromtimestamp(stamp, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "time_source": source}
