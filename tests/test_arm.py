@@ -1,0 +1,82 @@
+"""recorders.arm: dynamics, determinism, layouts, MCAP recording = in-memory episode."""
+
+import numpy as np
+import pytest
+
+from slearn.errors import InputError
+from slearn.library import PatternLibrary
+from slearn.online import run_online
+from slearn.predictor import Predictor
+from slearn.recorders.arm import (SENSORS, ArmConfig, arm_spec, arm_vocabulary, record_arm,
+                                  simulate_arm)
+from slearn.serialize import read_episodes
+from slearn.vocabulary import Vocabulary
+
+
+def test_each_trial_moves_only_the_commanded_joint_by_one_bin():
+    run = simulate_arm(ArmConfig(joints=3, trials=500, seed=1))
+    step = np.diff(run.positions.astype(int), axis=0)
+    moved = step != 0
+    assert (moved.sum(axis=1) == 1).all()
+    assert (np.argmax(moved, axis=1) == run.joint).all()
+    delta = step[np.arange(500), run.joint]
+    expected = np.where(run.commands == 1, 1, -1)
+    assert ((delta - expected) % 36 == 0).all()
+    assert run.positions.min() >= 1 and run.positions.max() <= 36
+
+
+def test_seeded_and_every_joint_gets_commands():
+    a, b = (simulate_arm(ArmConfig(joints=4, trials=400, seed=7)) for _ in range(2))
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.joint, b.joint)
+    other = simulate_arm(ArmConfig(joints=4, trials=400, seed=8))
+    assert not np.array_equal(a.joint, other.joint)
+    assert set(a.joint.tolist()) == {0, 1, 2, 3}
+
+
+@pytest.mark.parametrize("sensors", SENSORS)
+@pytest.mark.parametrize("joints", [1, 3])
+def test_recorded_file_reads_back_as_the_in_memory_episode(tmp_path, sensors, joints):
+    config = ArmConfig(joints=joints, trials=300, seed=2, sensors=sensors)
+    summary = record_arm(config, tmp_path / "arm.mcap")
+    per_trial = 1 if sensors == "moved" else joints
+    assert sum(summary.messages.values()) == 300 + 300 * per_trial + joints
+    vocabulary = Vocabulary()
+    [(_, episode, _)] = read_episodes([tmp_path / "arm.mcap"], arm_spec(joints), vocabulary)
+    expected = simulate_arm(config).to_episode()
+    for name in ("symbols", "step_offsets", "n_actions"):
+        assert np.array_equal(getattr(episode, name), getattr(expected, name))
+    assert list(vocabulary.items()) == list(arm_vocabulary(joints).items())
+
+
+def test_step_layouts():
+    moved = simulate_arm(ArmConfig(joints=2, trials=5, sensors="moved")).to_episode()
+    every = simulate_arm(ArmConfig(joints=2, trials=5, sensors="all")).to_episode()
+    assert [len(o) for _, o in moved.steps()] == [2, 1, 1, 1, 1, 1]
+    assert [len(o) for _, o in every.steps()] == [2, 2, 2, 2, 2, 2]
+    assert all(len(a) == 1 for a, _ in moved.steps()[1:])
+
+
+def test_one_joint_is_learned_like_the_simple_pointer():
+    episode = simulate_arm(ArmConfig(joints=1, trials=3000, seed=0)).to_episode()
+    result = run_online(Predictor(PatternLibrary()), episode)
+    assert result.correct[-1000:].mean() == 1.0
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"joints": 0}, "joints must be an integer in 1..4"),
+    ({"joints": 5}, "joints must be an integer in 1..4"),
+    ({"trials": 0}, "trials must be an integer >= 1"),
+    ({"seed": -1}, "seed must be an integer >= 0"),
+    ({"sensors": "some"}, "sensors 'some' is unknown"),
+])
+def test_bad_config(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        ArmConfig(**kwargs)
+
+
+def test_existing_file_is_refused(tmp_path):
+    path = tmp_path / "a.mcap"
+    path.write_bytes(b"x")
+    with pytest.raises(InputError, match="already exists"):
+        record_arm(ArmConfig(trials=10), path)
+    assert path.read_bytes() == b"x"
