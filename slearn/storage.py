@@ -502,7 +502,7 @@ def read_info(path: str | os.PathLike) -> dict:
 
 # --- describing --------------------------------------------------------------------------
 
-def describe(path: str | os.PathLike) -> dict:
+def describe(path: str | os.PathLike) -> "LibraryDescription":
     """What a library file holds, as plain JSON-able data (for ``slearn info LIB.parquet``).
 
     Pattern count, length histogram (steps), vocabulary, the most frequent patterns
@@ -519,7 +519,7 @@ def describe(path: str | os.PathLike) -> dict:
         columns = _read_pattern_columns(parquet, groups["pattern"], path)
     size, n = path.stat().st_size, len(columns.count)
     steps = np.diff(columns.token_offsets) // 2
-    return {
+    return LibraryDescription({
         "kind": "library", "path": str(path), "format": doc["format"], "format_version": doc["version"],
         "size_bytes": size, "patterns": n, "bytes_per_pattern": size / n if n else 0.0,
         "clock": doc["library"]["clock"], "forgotten": doc["library"]["forgotten"],
@@ -529,7 +529,45 @@ def describe(path: str | os.PathLike) -> dict:
         "vocabulary": _describe_vocabulary(vocabulary),
         "top_patterns": _top_patterns(columns, vocabulary),
         "params": doc["params"], "spec": doc["spec"], "provenance": doc["provenance"],
-    }
+    })
+
+
+class LibraryDescription(dict):
+    """The plain data of :func:`describe`, with a text rendering for ``slearn info``."""
+
+    def to_dict(self) -> dict:
+        """The plain JSON-able data."""
+        return dict(self)
+
+    def render(self) -> str:
+        """Human-readable text (several lines)."""
+        params = self["params"]
+        histogram = ", ".join(f"{k}: {v:,}" for k, v in self["length_histogram"].items())
+        lines = [self["path"],
+                 f"  pattern library (format {self['format_version']}), {self['patterns']:,} patterns, "
+                 f"{self['size_bytes']:,} bytes ({self['bytes_per_pattern']:.1f} bytes/pattern), "
+                 f"clock {self['clock']:,} steps, {self['forgotten']:,} forgotten",
+                 f"  max length {params.get('max_length')}, max patterns "
+                 f"{params.get('max_patterns') or '-'}, scoring {params.get('scoring')}",
+                 f"  patterns by steps: {histogram or '-'} (mean {self['mean_steps']:.2f})",
+                 f"  vocabulary: {self['vocabulary']['symbols']} symbols"]
+        for channel in self["vocabulary"]["channels"]:
+            values = ", ".join(map(str, channel["values"][:12]))
+            more = " ..." if channel["n_values"] > 12 else ""
+            lines.append(f"    {channel['channel']:<32} {channel['role']:<11} {channel['n_values']:>6}  "
+                         f"{values}{more}")
+        lines.append("  top patterns (count, last seen):")
+        lines += [f"    {p['count']:>8,} {p['last_seen']:>10,}  {p['pattern']}" for p in self["top_patterns"]]
+        return "\n".join(lines + self._provenance_lines())
+
+    def _provenance_lines(self) -> list[str]:
+        provenance = self["provenance"]
+        inputs = provenance.get("inputs", [])
+        lines = [f"  learned by slearn {provenance.get('slearn_version')} from {len(inputs)} log(s), "
+                 f"time {provenance.get('time')} ({provenance.get('time_source')})"]
+        lines += [f"    {i['path']}  {i['size_bytes']:,} bytes  sha256 {i['sha256'][:16]}"
+                  for i in inputs[:5]]
+        return lines + ([f"    ... {len(inputs) - 5} more"] if len(inputs) > 5 else [])
 
 
 def _describe_vocabulary(vocabulary: Vocabulary) -> dict:
@@ -556,9 +594,19 @@ def _top_patterns(columns: _PatternColumns, vocabulary: Vocabulary) -> list[dict
         top.append({"pattern": " ".join("+".join(labels[s] for s in t) or "-" for t in tokens),
                     "steps": len(tokens) // 2, "count": int(columns.count[i]),
                     "last_seen": int(columns.last_seen[i]),
-                    "tokens": [[[*vocabulary.name(s)[:1], _jsonable(vocabulary.name(s)[1])] for s in t]
-                               for t in tokens]})
+                    "tokens": [_token_events(vocabulary, t) for t in tokens]})
     return top
+
+
+def _token_events(vocabulary: Vocabulary, symbols: list[int]) -> dict:
+    """``{channel: value}`` of one token (a list of values when a channel repeats)."""
+    events: dict[str, Any] = {}
+    for symbol in symbols:
+        channel, value = vocabulary.name(symbol)
+        value = _jsonable(value)
+        events[channel] = [*events[channel], value] if isinstance(events.get(channel), list) else (
+            [events[channel], value] if channel in events else value)
+    return events
 
 
 def _pattern_tokens(columns: _PatternColumns, i: int) -> list[list[int]]:
