@@ -1,0 +1,80 @@
+"""``slearn learn``: learn a pattern library from MCAP logs and save it as Parquet."""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+
+import click
+
+from slearn.cli import EXIT_TRUNCATED
+from slearn.errors import TruncatedLogWarning
+from slearn.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
+from slearn.spec import MODES, Spec, load_spec, spec_from_options
+
+
+def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
+          tick_ms: float | None) -> Spec | None:
+    if spec_path and channels:
+        raise click.UsageError("give --spec or --channel, not both")
+    if spec_path:
+        if mode or tick_ms:
+            raise click.UsageError("--mode and --tick-ms go with --channel; a spec file has its own")
+        return load_spec(spec_path)
+    if channels:
+        return spec_from_options(channels, mode or "change", tick_ms)
+    if mode or tick_ms:
+        raise click.UsageError("--mode and --tick-ms need --channel")
+    return None
+
+
+def _summary(result: LearnResult) -> str:
+    resumed = f" (resumed from {result.resumed_from})" if result.resumed_from else ""
+    return (f"learned {result.n_episodes} episode(s), {result.n_steps:,} steps, "
+            f"{result.n_events:,} events in {result.seconds:.2f} s{resumed}\n"
+            f"wrote {result.output}: {result.n_patterns:,} patterns, {result.size_bytes:,} bytes "
+            f"({result.bytes_per_pattern:.1f} bytes/pattern), {result.n_symbols} symbols"
+            + (f", {result.forgotten:,} forgotten" if result.forgotten else ""))
+
+
+@click.command("learn")
+@click.argument("logs", nargs=-1, required=True)
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The library file (Parquet) to write.")
+@click.option("--spec", "spec_path", type=click.Path(dir_okay=False),
+              help="Channel spec (TOML); default: the pointer's channels for pointer logs.")
+@click.option("--channel", "channels", multiple=True, metavar="TOPIC:FIELD:ROLE[:OPTIONS]",
+              help="A spec entry (repeatable), e.g. /pointer/command:command:action.")
+@click.option("--mode", type=click.Choice(MODES), help="Event mode for --channel (default change).")
+@click.option("--tick-ms", type=float, help="Tick period for --mode tick.")
+@click.option("--max-length", type=click.IntRange(min=1), help="Longest pattern in steps [default 5].")
+@click.option("--max-patterns", type=click.IntRange(min=16),
+              help="Forget the rarest, oldest patterns beyond this many [default: keep all].")
+@click.option("--scoring", type=click.Choice(SCORING_RULES),
+              help="Scoring rule stored for predictors [default adaptive].")
+@click.option("--resume", type=click.Path(dir_okay=False),
+              help="Go on learning from this library (its spec, vocabulary and parameters).")
+@click.option("--force", is_flag=True, help="Overwrite the output file.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
+@click.pass_context
+def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: str | None,
+            channels: tuple[str, ...], mode: str | None, tick_ms: float | None,
+            max_length: int | None, max_patterns: int | None, scoring: str | None,
+            resume: str | None, force: bool, quiet: bool, as_json: bool) -> None:
+    """Learn a pattern library from MCAP LOGS (each file is an episode).
+
+    Exits 3 when a log was truncated: what could be read is learned and saved.
+    """
+    spec = _spec(spec_path, channels, mode, tick_ms)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
+        result = learn_files(expand_paths(list(logs)), output, spec=spec, resume=resume,
+                             max_length=max_length, max_patterns=max_patterns, scoring=scoring,
+                             overwrite=force, progress=not quiet and sys.stderr.isatty())
+    click.echo(json.dumps(result.to_dict()) if as_json else _summary(result))
+    for report in result.truncated:
+        click.echo(f"slearn: warning: {report.describe()}", err=True)
+    if result.truncated:
+        ctx.exit(EXIT_TRUNCATED)
