@@ -58,7 +58,8 @@ _CHUNK_TIMES = struct.Struct("<QQQI")
 
 _BLOCK_MESSAGES = 4096  # messages outside chunks are merged in blocks of this many
 _BLOCK_BYTES = 4 << 20
-_SMALL_RECORD = 1 << 24  # schema/channel/header records larger than this are corrupt
+_SMALL_RECORD = 1 << 24
+_MAX_CHUNK_BYTES = 1 << 32  # a larger declared chunk is corrupt, not data  # schema/channel/header records larger than this are corrupt
 
 
 @dataclass(frozen=True)
@@ -311,11 +312,11 @@ def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
                 builder.close()
             if op == _OP_FOOTER:
                 break
-            _scan_other(f, op, length, pos, end, layout)
+            _scan_other(f, op, length, pos, end, layout, report)
         pos = end
         f.seek(pos)
     builder.close()
-    _check_trailing_magic(f, pos, size, report)
+    _check_trailing_magic(f, pos, report)
     _resolve_channels(layout)
     return layout
 
@@ -326,16 +327,20 @@ def _read_message_time(f: BinaryIO, length: int) -> int:
     return _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))[2]
 
 
-def _scan_other(f: BinaryIO, op: int, length: int, pos: int, end: int, layout: _Layout) -> None:
+def _scan_other(f: BinaryIO, op: int, length: int, pos: int, end: int, layout: _Layout,
+                report: ReadReport) -> None:
     """Handle a non-message record of the scan (only its start has been read)."""
     if op == _OP_CHUNK:
         start_time = _U64.unpack(f.read(8))[0] if length >= 8 else 0
         layout.blocks.append(_Block(pos, end, start_time, True))
     elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_HEADER) and length < _SMALL_RECORD:
-        _register_record(op, f.read(length), 0, length, layout)
+        try:
+            _register_record(op, f.read(length), 0, length, layout)
+        except struct.error:
+            report.note_break(pos, f"unreadable record (opcode 0x{op:02x})")
 
 
-def _check_trailing_magic(f: BinaryIO, pos: int, size: int, report: ReadReport) -> None:
+def _check_trailing_magic(f: BinaryIO, pos: int, report: ReadReport) -> None:
     if report.truncated:
         return
     f.seek(pos + 9 + 20)  # footer: summary_start, summary_offset_start, crc
@@ -410,6 +415,8 @@ def _chunk_records(f: BinaryIO, block: _Block) -> bytes:
         raise ValueError(f"chunk header unreadable: {err}") from err
     if pos + 8 + n > len(buf):
         raise ValueError("chunk records run past the chunk")
+    if uncompressed_size > _MAX_CHUNK_BYTES:
+        raise ValueError(f"implausible chunk size {uncompressed_size}")
     try:
         data = _decompress(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
     except Exception as err:  # zstd/lz4 raise their own error types

@@ -209,3 +209,24 @@ def test_derived_truncated_files_salvage_and_warn(permille, salvaged):
         count = sum(1 for _ in iter_messages(path, report=report))
     assert count == report.n_messages == salvaged
     assert report.truncated and 0 < report.broken_at <= path.stat().st_size
+
+
+def test_random_corruption_never_escapes_as_a_traceback(tmp_path):
+    import random
+    rng = random.Random(7)
+    sources = [write_log(tmp_path / f"{name}.mcap", _shuffled_messages(120), **options).read_bytes()
+               for name, options in (("chunked", dict(chunk_size=300)),
+                                     ("unchunked", dict(use_chunking=False, index_types=IndexType.NONE)))]
+    path = tmp_path / "fuzz.mcap"
+    for _ in range(300):
+        data = bytearray(rng.choice(sources))
+        for _ in range(rng.randint(1, 6)):
+            data[rng.randrange(len(data))] = rng.randrange(256)
+        path.write_bytes(bytes(data[:rng.randrange(len(data))] if rng.random() < 0.3 else data))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TruncatedLogWarning)
+            try:
+                times = [m.log_time_ns for m in iter_messages(path)]
+            except InputError:
+                continue
+        assert len(times) <= 120
