@@ -105,6 +105,16 @@ class PatternLibrary:
         self.make_room()
         self._state[:] = (_anchor(self._trie, tokens[0]), 0, 1)
 
+    def learn_next(self, action_token: int, observation_token: int) -> None:
+        """Learn one more step of the episode opened by :meth:`begin_episode` (closed loop)."""
+        args = self._kernel_args()
+        if not has_room(args[0], args[3], args[4], args[5], self.max_length, args[9]):
+            self.make_room()
+            args = self._kernel_args()
+        learn_step(*args[:7], int(action_token), int(observation_token), self.clock,
+                   self.max_length, self._buf)
+        self._clock[0] += 1
+
     def end_episode(self) -> None:
         """Count the match still open at the end of an episode."""
         if self._state[1] > 0:
