@@ -245,7 +245,7 @@ def iter_messages(path: str | os.PathLike, *, topics: Iterable[str] | None = Non
     Args:
         path: the MCAP file.
         topics: only these topics (``None``: all).
-        report: filled in as the pass goes (messages read, where the file broke).
+        report: filled in at the end of the pass (messages read, where the file broke).
         warn: at the end of a pass over a truncated or corrupt file, warn with a
             :class:`~slearn.errors.TruncatedLogWarning` naming the file, the number of
             messages read and the byte offset of the break.
@@ -257,7 +257,7 @@ def iter_messages(path: str | os.PathLike, *, topics: Iterable[str] | None = Non
     with McapLog(path) as log:
         yield from log.iter_messages(topics, on_progress)
         if report is not None:
-            report.__dict__.update(log.report.__dict__)
+            vars(report).update(vars(log.report))
         if warn and log.report.truncated:
             warnings.warn(TruncatedLogWarning(log.report.describe()), stacklevel=2)
 

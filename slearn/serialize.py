@@ -118,7 +118,7 @@ def iter_field_values(path: str | os.PathLike, spec: Spec, report: ReadReport | 
                     entry.n_values += 1
                     yield message.log_time_ns, entry.index, value
         if report is not None:
-            report.__dict__.update(log.report.__dict__)
+            vars(report).update(vars(log.report))
         _check_coverage(path, by_topic, seen, log)
 
 
