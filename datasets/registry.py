@@ -1,0 +1,273 @@
+"""Named, reproducible datasets: MCAP episodes split by episode, a card and a spec.
+
+``build_dataset(name, folder)`` writes::
+
+    FOLDER/README.md        the dataset card: what, how made, channels, spec, seeds, license
+    FOLDER/spec.toml        the spec to learn it with (slearn learn --spec)
+    FOLDER/train/*.mcap     training episodes, one file each
+    FOLDER/heldout/*.mcap   held-out episodes (other seeds), one file each
+
+``pointer-arm`` has one such ``joints-J/`` folder (card, spec, splits) per joint count
+under one top-level card. Everything is deterministic in the seeds listed here: the same
+slearn version builds the same episodes. Cards are templates shipped next to this
+module (``NAME.md``, ``$placeholders`` filled in at build time); the pointer and PR2 specs
+are shipped as ``NAME.toml``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from string import Template
+from typing import Callable
+
+from slearn import __version__
+from slearn.errors import InputError, SpecError
+from slearn.recorders.arm import MAX_JOINTS, ArmConfig, arm_spec, record_arm
+from slearn.recorders.live import spec_toml
+from slearn.recorders.pointer import CONDITIONS, PointerConfig
+from slearn.recorders.record_pointer import record_pointer
+from slearn.serialize import read_episodes
+from slearn.spec import load_spec
+from slearn.vocabulary import Vocabulary
+
+SPLITS = ("train", "heldout")
+TRAIN_SEEDS = (0, 1, 2, 3)
+HELDOUT_SEEDS = (4,)
+POINTER_TRIALS = 10_000
+ARM_TRIALS = 10_000
+SPEC_FILE = "spec.toml"
+CARD_FILE = "README.md"
+
+
+@dataclass(frozen=True)
+class EpisodeFile:
+    """One written episode: where, which split, and what made it."""
+
+    path: str
+    split: str
+    description: str
+    seed: int | None
+    trials: int | None
+
+
+@dataclass
+class BuildSummary:
+    """What a build wrote."""
+
+    name: str
+    folder: str
+    episodes: list[EpisodeFile] = field(default_factory=list)
+    specs: list[str] = field(default_factory=list)
+    cards: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A registered dataset: its name, one line on what it is, its license, its builder."""
+
+    name: str
+    summary: str
+    license: str
+    build: Callable[[Path, BuildSummary, Path | None], None]
+
+    def to_dict(self) -> dict:
+        """Name, summary and license."""
+        return {"name": self.name, "summary": self.summary, "license": self.license}
+
+
+def list_datasets() -> list[Dataset]:
+    """Every registered dataset, in name order."""
+    return [DATASETS[name] for name in sorted(DATASETS)]
+
+
+def get_dataset(name: str) -> Dataset:
+    """The dataset called ``name``; an :class:`InputError` naming the known ones otherwise."""
+    try:
+        return DATASETS[name]
+    except KeyError:
+        raise InputError(f"no dataset named {name!r}: choose one of "
+                         f"{', '.join(sorted(DATASETS))} (see `slearn datasets list`)") from None
+
+
+def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = False,
+                  source: str | os.PathLike | None = None) -> BuildSummary:
+    """Build dataset ``name`` into ``folder`` (see the module doc for the layout).
+
+    Args:
+        name: a registered dataset name.
+        folder: the output folder; it must not exist or be empty unless ``overwrite``.
+        overwrite: rebuild into a non-empty folder; the dataset's own files there
+            (cards, specs, split folders) are replaced, other files are left alone.
+        source: a log of your own to put in ``heldout/`` (``pr2-sample`` only).
+
+    Raises:
+        InputError: unknown name, a non-empty folder without ``overwrite``, an unusable
+            ``source``.
+    """
+    dataset = get_dataset(name)
+    if source is not None and name != "pr2-sample":
+        raise InputError(f"--source is for pr2-sample; {name} is simulated from seeds")
+    folder = Path(folder)
+    _prepare_folder(folder, overwrite)
+    summary = BuildSummary(name, str(folder))
+    dataset.build(folder, summary, Path(source) if source is not None else None)
+    return summary
+
+
+def _prepare_folder(folder: Path, overwrite: bool) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder} is a file: give a folder to build the dataset in")
+    if folder.is_dir() and any(folder.iterdir()) and not overwrite:
+        raise InputError(f"{folder} is not empty: pass --force to rebuild the dataset there")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create {folder}: {err.strerror or err}") from err
+
+
+def _split_folders(root: Path) -> dict[str, Path]:
+    """Fresh ``train/`` and ``heldout/`` under ``root`` (stale episodes removed)."""
+    folders = {}
+    for split in SPLITS:
+        folder = root / split
+        if folder.is_dir():
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True)
+        folders[split] = folder
+    return folders
+
+
+def _package_text(name: str) -> str:
+    return resources.files("slearn.datasets").joinpath(name).read_text(encoding="utf-8")
+
+
+def _write_card(path: Path, template: str, summary: BuildSummary, **values: str) -> None:
+    text = Template(_package_text(template)).substitute(version=__version__, **values)
+    path.write_text(text, encoding="utf-8")
+    summary.cards.append(str(path))
+
+
+def _write_spec(path: Path, text: str, summary: BuildSummary) -> str:
+    path.write_text(text, encoding="utf-8")
+    summary.specs.append(str(path))
+    return text
+
+
+def _files_table(episodes: list[EpisodeFile], root: Path) -> str:
+    rows = ["| file | split | episode | seed | trials |", "|---|---|---|---|---|"]
+    for e in episodes:
+        rows.append(f"| `{Path(e.path).relative_to(root).as_posix()}` | {e.split} | "
+                    f"{e.description} | {e.seed if e.seed is not None else '-'} | "
+                    f"{e.trials if e.trials is not None else '-'} |")
+    return "\n".join(rows)
+
+
+def _seed_splits() -> list[tuple[str, int]]:
+    return [("train", s) for s in TRAIN_SEEDS] + [("heldout", s) for s in HELDOUT_SEEDS]
+
+
+# --- pointer-paper ---------------------------------------------------------------------------
+
+def _build_pointer_paper(root: Path, summary: BuildSummary, source: Path | None) -> None:
+    folders = _split_folders(root)
+    episodes = []
+    for condition in CONDITIONS:
+        for split, seed in _seed_splits():
+            path = folders[split] / f"{condition}-seed{seed}.mcap"
+            record_pointer(PointerConfig(condition, POINTER_TRIALS, seed), path, overwrite=True)
+            episodes.append(EpisodeFile(str(path), split, condition, seed, POINTER_TRIALS))
+    summary.episodes += episodes
+    spec = _write_spec(root / SPEC_FILE, _package_text("pointer-paper.toml"), summary)
+    _write_card(root / CARD_FILE, "pointer-paper.md", summary, spec=spec.strip(),
+                files=_files_table(episodes, root), trials=f"{POINTER_TRIALS:,}",
+                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS))
+
+
+def _listing(seeds: tuple[int, ...]) -> str:
+    return ", ".join(map(str, seeds))
+
+
+# --- pointer-arm -----------------------------------------------------------------------------
+
+def _build_pointer_arm(root: Path, summary: BuildSummary, source: Path | None) -> None:
+    tables = []
+    for joints in range(1, MAX_JOINTS + 1):
+        sub = root / f"joints-{joints}"
+        sub.mkdir(exist_ok=True)
+        folders = _split_folders(sub)
+        episodes = []
+        for split, seed in _seed_splits():
+            path = folders[split] / f"arm{joints}-seed{seed}.mcap"
+            record_arm(ArmConfig(joints, ARM_TRIALS, seed, "moved"), path, overwrite=True)
+            episodes.append(EpisodeFile(str(path), split, f"{joints} joint(s)", seed, ARM_TRIALS))
+        summary.episodes += episodes
+        spec = spec_toml(arm_spec(joints), f"Spec for the pointer arm with {joints} joint(s): "
+                         "per joint its command (action) and position (observation).")
+        _write_spec(sub / SPEC_FILE, spec, summary)
+        tables.append(_files_table(episodes, root))
+    _write_card(root / CARD_FILE, "pointer-arm.md", summary, files="\n\n".join(tables),
+                spec=spec_toml(arm_spec(2)).strip(), trials=f"{ARM_TRIALS:,}",
+                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS))
+
+
+# --- pr2-sample ------------------------------------------------------------------------------
+
+def _build_pr2_sample(root: Path, summary: BuildSummary, source: Path | None) -> None:
+    folders = _split_folders(root)
+    spec_text = _write_spec(root / SPEC_FILE, _package_text("pr2-sample.toml"), summary)
+    if source is None:
+        summary.notes.append(f"no log is included: copy your PR2 logs (ROS 2 MCAP with "
+                             f"/joint_states) into {folders['train']} and {folders['heldout']}, "
+                             f"or rebuild with --source LOG")
+        found = "No log was given at build time; the split folders are empty."
+    else:
+        found = _add_source(source, folders["heldout"], root, summary)
+    _write_card(root / CARD_FILE, "pr2-sample.md", summary, spec=spec_text.strip(), found=found)
+
+
+def _add_source(source: Path, heldout: Path, root: Path, summary: BuildSummary) -> str:
+    if not source.is_file():
+        raise InputError(f"--source {source}: no such file (give an MCAP log)")
+    target = heldout / source.name
+    try:
+        shutil.copyfile(source, target)
+    except OSError as err:
+        raise InputError(f"--source {source}: cannot copy it: {err.strerror or err}") from err
+    spec = load_spec(root / SPEC_FILE)
+    try:
+        [(_, episode, report)] = list(read_episodes([target], spec, Vocabulary()))
+    except SpecError as err:
+        target.unlink()
+        raise InputError(f"--source {source}: the pr2-sample spec does not fit it: {err}") from err
+    summary.episodes.append(EpisodeFile(str(target), "heldout", "your log", None, None))
+    summary.notes.append(f"copied {source} to {target}: {len(episode)} steps, "
+                         f"{episode.n_events} events under the spec")
+    return (f"Built with `--source {source.name}`, copied to `heldout/{source.name}`: "
+            f"{report.n_messages:,} messages read, "
+            f"{len(episode)} steps and {episode.n_events} events under the spec.")
+
+
+DATASETS: dict[str, Dataset] = {
+    "pointer-paper": Dataset(
+        "pointer-paper",
+        "the paper's rotary pointer, six conditions x 5 episodes of 10,000 trials",
+        "MIT (simulated by slearn)", _build_pointer_paper),
+    "pointer-arm": Dataset(
+        "pointer-arm",
+        "a pointer arm of 1, 2, 3 and 4 joints, 5 episodes of 10,000 trials each",
+        "MIT (simulated by slearn)", _build_pointer_arm),
+    "pr2-sample": Dataset(
+        "pr2-sample",
+        "spec and card for a real PR2 ROS 2 log (/joint_states); bring your own log",
+        "spec and card MIT; logs keep their own license (the PR2 sample: BSD)",
+        _build_pr2_sample),
+}
