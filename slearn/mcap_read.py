@@ -124,6 +124,7 @@ class ReadReport:
         broken_at: byte offset of the first record that could not be read, else ``None``.
         reason: why it broke.
         n_skipped_chunks: chunks skipped as unreadable (corrupt) before the end.
+        filtered: the pass read some topics only (``n_messages`` counts those).
     """
 
     path: str
@@ -132,6 +133,7 @@ class ReadReport:
     broken_at: int | None = None
     reason: str | None = None
     n_skipped_chunks: int = 0
+    filtered: bool = False
 
     @property
     def truncated(self) -> bool:
@@ -148,7 +150,8 @@ class ReadReport:
         if not self.truncated:
             return f"{self.path}: {self.n_messages} messages read"
         skipped = f", {self.n_skipped_chunks} unreadable chunk(s) skipped" if self.n_skipped_chunks else ""
-        return (f"{self.path}: truncated or corrupt log: salvaged {self.n_messages} messages; "
+        which = " of the selected topics" if self.filtered else ""
+        return (f"{self.path}: truncated or corrupt log: salvaged {self.n_messages} messages{which}; "
                 f"broke at byte {self.broken_at} of {self.size_bytes} ({self.reason}){skipped}")
 
 
@@ -231,6 +234,7 @@ class McapLog:
         ``self.report`` counts what was yielded and records where the file broke.
         """
         wanted = None if topics is None else frozenset(topics)
+        self.report.filtered = wanted is not None
         merge = _Merge(self._file, self._layout, self.report, wanted, on_progress)
         for message in merge:
             self.report.n_messages += 1
