@@ -1,0 +1,70 @@
+"""Learning curves of a replay as PNG (matplotlib, Agg backend, no global pyplot state).
+
+One line per log; a single log with several observation channels gets one line per
+channel instead. With a single log, the baselines are drawn dashed beside the library.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from slearn.errors import InputError
+from slearn.replay.evaluate import Evaluation
+
+
+def curves_png(evaluation: Evaluation, *, width_in: float = 8.0, height_in: float = 4.5) -> bytes:
+    """The learning curves as PNG bytes."""
+    figure = Figure(figsize=(width_in, height_in), dpi=110)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    for label, x, y, style in _lines(evaluation):
+        axes.plot(x, 100 * y, style, label=label, linewidth=1.4 if style == "-" else 1.0)
+    axes.set_xlabel(f"step (windows of {evaluation.window} steps)")
+    axes.set_ylabel("accuracy (%)")
+    axes.set_ylim(-2, 102)
+    axes.grid(True, alpha=0.3)
+    axes.set_title(f"{evaluation.mode} replay: accuracy per window")
+    if axes.lines:
+        axes.legend(loc="lower right", fontsize="small")
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png")
+    return buffer.getvalue()
+
+
+def write_curves(evaluation: Evaluation, path: str | os.PathLike) -> None:
+    """Write :func:`curves_png` to ``path``.
+
+    Raises:
+        InputError: the file cannot be written.
+    """
+    try:
+        Path(path).write_bytes(curves_png(evaluation))
+    except OSError as err:
+        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
+
+
+def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, str]]:
+    """``(label, x, accuracy in [0, 1], style)`` per line."""
+    lines = []
+    episodes = evaluation.episodes
+    channels = evaluation.channels.channels
+    for episode in episodes:
+        curve = episode.curve
+        x = curve.start + curve.window / 2
+        name = os.path.basename(episode.name)
+        if len(episodes) == 1 and len(channels) > 1:
+            by_channel = curve.channel_accuracy()
+            lines += [(c, x, by_channel[:, i], "-") for i, c in enumerate(channels)]
+        else:
+            lines.append((name if len(episodes) > 1 else "library", x, curve.accuracy(), "-"))
+        if len(episodes) == 1:
+            lines.append(("frequency baseline", x, curve.accuracy("frequency"), "--"))
+            lines.append((f"Markov baseline (order <= {evaluation.baseline_order})", x,
+                          curve.accuracy("markov"), ":"))
+    return lines

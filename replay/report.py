@@ -1,0 +1,129 @@
+"""Human-readable renderings of a replay: a text table and one self-contained HTML file."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+import os
+from pathlib import Path
+
+from slearn.errors import InputError
+from slearn.replay.evaluate import Evaluation
+from slearn.replay.metrics import Tally
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.2f} %"
+
+
+def _lift(points: float) -> str:
+    return "-" if math.isnan(points) else f"{points:+.2f} pts"
+
+
+def _summary_rows(t: Tally) -> list[tuple[str, str, str, str]]:
+    """``(predictor, accuracy, abstained, lift of the library over it)`` rows."""
+    rows = [("library", _pct(t.accuracy), _pct(t.rate("abstained")), "")]
+    for name in ("frequency", "markov"):
+        rows.append((f"{name} baseline", _pct(t.rate(name)), _pct(t.rate(f"{name}_abstained")),
+                     _lift(100 * (t.accuracy - t.rate(name)))))
+    return rows
+
+
+def format_table(evaluation: Evaluation) -> str:
+    """The replay as a plain-text report for a terminal."""
+    e, t = evaluation, evaluation.totals
+    library = (e.setup.get("library") or {}).get("path") or "(empty library)"
+    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} log(s), {t.events} predicted "
+             f"observation events, top-{e.top_k}, windows of {e.window} steps", ""]
+    lines.append(f"  {'predictor':<20} {'accuracy':>10} {'abstained':>10} {'lift':>12}")
+    lines += [f"  {p:<20} {a:>10} {b:>10} {c:>12}" for p, a, b, c in _summary_rows(t)]
+    lines.append(f"  {'library top-' + str(e.top_k):<20} {_pct(t.rate('top_k')):>10}")
+    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'frequency':>10} {'markov':>10}"]
+    for c in e.channels.to_list():
+        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
+                     f"{_pct(c['frequency_accuracy']):>10} {_pct(c['markov_accuracy']):>10}")
+    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10} {'frequency':>10} {'markov':>10}"]
+    for ep in e.episodes:
+        mark = " (truncated)" if ep.truncated else ""
+        lines.append(f"  {os.path.basename(ep.name) + mark:<40} {ep.tally.events:>9} "
+                     f"{_pct(ep.tally.accuracy):>10} {_pct(ep.tally.rate('abstained')):>10} "
+                     f"{_pct(ep.tally.rate('frequency')):>10} {_pct(ep.tally.rate('markov')):>10}")
+    if e.confusions:
+        lines += ["", "  most frequent confusions (predicted -> actual):"]
+        lines += [f"  {n:>9}  {p} -> {a}" for p, a, n in e.confusions]
+    lines += [""] + [f"  note: {n}" for n in e.notes]
+    lines.append(f"  {e.predictions:,} predictions, {e.predictions_per_s:,.0f} predictions/s "
+                 f"(evaluation core)")
+    return "\n".join(lines)
+
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:60em;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{padding:0.2em 0.8em;border-bottom:1px solid #ddd;
+text-align:right}td:first-child,th:first-child{text-align:left}pre{background:#f5f5f5;padding:0.8em;
+overflow-x:auto}img{max-width:100%}.note{color:#555}"""
+
+
+def _table(header: list[str], rows: list[list]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
+                   for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
+    """One self-contained HTML page: parameters, provenance, scores, curves, confusions.
+
+    Args:
+        curves_png: the learning curves as PNG (default: drawn by :mod:`slearn.replay.plots`).
+    """
+    from slearn.replay.plots import curves_png as draw
+
+    e, t = evaluation, evaluation.totals
+    png = curves_png if curves_png is not None else draw(e)
+    image = base64.b64encode(png).decode("ascii")
+    parts = [f"<h1>slearn replay ({html.escape(e.mode)})</h1>",
+             f"<p>{len(e.episodes)} log(s), {t.events} predicted observation events, "
+             f"top-{e.top_k}, windows of {e.window} steps.</p>",
+             "<h2>Accuracy</h2>",
+             _table(["predictor", "accuracy", "abstained", "lift of the library"],
+                    [list(r) for r in _summary_rows(t)]
+                    + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", ""]]),
+             f'<img alt="learning curves" src="data:image/png;base64,{image}">',
+             "<h2>Channels</h2>",
+             _table(["channel", "events", "library", "frequency", "markov"],
+                    [[c["channel"], c["events"], _pct(c["accuracy"]), _pct(c["frequency_accuracy"]),
+                      _pct(c["markov_accuracy"])] for c in e.channels.to_list()]),
+             "<h2>Logs</h2>",
+             _table(["log", "events", "library", "abstained", "frequency", "markov", "truncated"],
+                    [[ep.name, ep.tally.events, _pct(ep.tally.accuracy), _pct(ep.tally.rate("abstained")),
+                      _pct(ep.tally.rate("frequency")), _pct(ep.tally.rate("markov")),
+                      "yes" if ep.truncated else ""] for ep in e.episodes]),
+             "<h2>Most frequent confusions</h2>",
+             _table(["count", "predicted", "actual"], [[n, p, a] for p, a, n in e.confusions])
+             if e.confusions else "<p>none</p>",
+             "<h2>Notes</h2>",
+             "".join(f'<p class="note">{html.escape(n)}</p>' for n in e.notes + e.warnings),
+             "<h2>Parameters and provenance</h2>",
+             f"<pre>{html.escape(json.dumps(_setup(e), indent=2, default=str))}</pre>"]
+    return (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>slearn replay</title>"
+            f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
+
+
+def _setup(evaluation: Evaluation) -> dict:
+    return {"mode": evaluation.mode, "top_k": evaluation.top_k, "window": evaluation.window,
+            "baselines": {"fit": evaluation.baseline_fit, "markov_max_order": evaluation.baseline_order},
+            **evaluation.setup}
+
+
+def write_html(evaluation: Evaluation, path: str | os.PathLike) -> None:
+    """Write :func:`render_html` to ``path``.
+
+    Raises:
+        InputError: the file cannot be written.
+    """
+    try:
+        Path(path).write_text(render_html(evaluation), encoding="utf-8")
+    except OSError as err:
+        raise InputError(f"{path}: cannot write the report: {err.strerror or err}") from err
