@@ -243,3 +243,12 @@ def test_default_spec_is_the_pointer_spec_for_pointer_logs(tmp_path):
     other = write_log(tmp_path / "o.mcap", MODES_LOG)
     with pytest.raises(SpecError, match="o.mcap: not a pointer log.*--suggest-spec"):
         default_spec([other])
+
+
+def test_tick_mode_refuses_absurd_tick_counts(tmp_path):
+    from slearn.errors import InputError
+    path = write_log(tmp_path / "static.mcap", [("/s", 0, {"v": 1}), ("/s", 10**18, {"v": 2})])
+    spec = Spec.from_dict({"mode": "tick", "tick_ns": 1000, "channel": [
+        {"topic": "/s", "field": "v", "role": "observation"}]})
+    with pytest.raises(InputError, match="more than .* ticks.*log time 0"):
+        episodes([path], spec)
