@@ -1,0 +1,184 @@
+"""datasets.registry and ``slearn datasets``: each dataset builds, learns and replays."""
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from slearn.cli import main
+from slearn.datasets.registry import (ARM_TRIALS, HELDOUT_SEEDS, POINTER_TRIALS, TRAIN_SEEDS,
+                                      build_dataset, list_datasets)
+from slearn.errors import InputError
+from slearn.online import run_online
+from slearn.predictor import Predictor
+from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
+from slearn.recorders.pointer import CONDITIONS
+from slearn.serialize import read_episodes
+from slearn.spec import load_spec, pointer_spec
+from slearn.storage import load_library
+
+PR2_LOG = (Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "ros2_cdr"
+           / "pr2_pr1012_sensors_ros2.mcap")
+BUILD_SECONDS = 20  # "builds in seconds", with room for a slow CI machine
+
+
+def _invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def pointer_paper(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pointer-paper")
+    start = time.perf_counter()
+    result = _invoke("datasets", "build", "pointer-paper", "-o", folder, "--json")
+    assert result.exit_code == 0, result.output
+    assert time.perf_counter() - start < BUILD_SECONDS
+    return folder, json.loads(result.stdout)
+
+
+@pytest.fixture(scope="module")
+def pointer_arm(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pointer-arm")
+    start = time.perf_counter()
+    summary = build_dataset("pointer-arm", folder)
+    assert time.perf_counter() - start < BUILD_SECONDS
+    return folder, summary
+
+
+def _learn(library_path, spec, logs):
+    result = _invoke("learn", *logs, "--spec", spec, "-o", library_path, "--json", "-q")
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def _frozen_accuracy(library_path, logs):
+    """Replay through the saved library, frozen (the core path under ``slearn replay``)."""
+    loaded = load_library(library_path)
+    predictor = Predictor(loaded.library)
+    correct = []
+    for _, episode, _ in read_episodes(logs, loaded.spec, loaded.vocabulary):
+        correct.append(run_online(predictor, episode, learn=False).correct)
+    return float(np.concatenate(correct).mean())
+
+
+def _replay_cli(library_path, logs):
+    """``slearn replay --json`` when the replay command exists, else ``None``."""
+    if "replay" not in main.commands:
+        return None
+    result = _invoke("replay", library_path, *logs, "--json")
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_list_names_every_dataset():
+    names = [d.name for d in list_datasets()]
+    assert names == ["pointer-arm", "pointer-paper", "pr2-sample"]
+    listed = json.loads(_invoke("datasets", "list", "--json").stdout)
+    assert [d["name"] for d in listed] == names and all(d["license"] for d in listed)
+    text = _invoke("datasets", "list").stdout.splitlines()
+    assert len(text) == 3 and text[1].startswith("pointer-paper")
+
+
+def test_pointer_paper_layout_card_and_spec(pointer_paper):
+    folder, summary = pointer_paper
+    train = sorted(p.name for p in (folder / "train").iterdir())
+    heldout = sorted(p.name for p in (folder / "heldout").iterdir())
+    assert train == sorted(f"{c}-seed{s}.mcap" for c in CONDITIONS for s in TRAIN_SEEDS)
+    assert heldout == sorted(f"{c}-seed{s}.mcap" for c in CONDITIONS for s in HELDOUT_SEEDS)
+    assert len(summary["episodes"]) == 6 * (len(TRAIN_SEEDS) + len(HELDOUT_SEEDS))
+    assert load_spec(folder / "spec.toml").to_dict() == pointer_spec().to_dict()
+    card = (folder / "README.md").read_text()
+    for needed in ("## What", "## How it was made", "## Channels", "## Spec", "## License",
+                   "/pointer/command", "held-out seeds: 4", f"{POINTER_TRIALS:,}",
+                   "`heldout/delay-seed4.mcap`", 'values = ["L", "R"]'):
+        assert needed in card
+    assert "$" not in card
+
+
+def test_pointer_paper_learns_and_replays(pointer_paper, tmp_path):
+    folder, _ = pointer_paper
+    library = tmp_path / "simple.parquet"
+    learned = _learn(library, folder / "spec.toml", sorted((folder / "train").glob("simple-*")))
+    assert learned["episodes"] == len(TRAIN_SEEDS) and learned["patterns"] > 100
+    heldout = sorted((folder / "heldout").glob("simple-*"))
+    assert _frozen_accuracy(library, heldout) > 0.99
+    replayed = _replay_cli(library, heldout)
+    if replayed is not None:
+        assert "accuracy" in json.dumps(replayed)
+
+
+def test_pointer_arm_layout_learns_and_replays(pointer_arm, tmp_path):
+    folder, summary = pointer_arm
+    assert len(summary.episodes) == 4 * (len(TRAIN_SEEDS) + len(HELDOUT_SEEDS))
+    card = (folder / "README.md").read_text()
+    assert "/arm/joint{j}/command" in card and "`joints-4/heldout/arm4-seed4.mcap`" in card
+    accuracy = {}
+    for joints in (1, 2, 3, 4):
+        sub = folder / f"joints-{joints}"
+        assert load_spec(sub / "spec.toml").to_dict() == arm_spec(joints).to_dict()
+        library = tmp_path / f"arm{joints}.parquet"
+        _learn(library, sub / "spec.toml", sorted((sub / "train").iterdir()))
+        accuracy[joints] = _frozen_accuracy(library, sorted((sub / "heldout").iterdir()))
+    assert accuracy[1] > 0.99
+    assert accuracy[1] > accuracy[2] > accuracy[4] > 0.1  # the curse, measured in bench_arm
+    _replay_cli(tmp_path / "arm2.parquet", sorted((folder / "joints-2/heldout").iterdir()))
+
+
+def test_episodes_are_reproducible_bit_for_bit(tmp_path):
+    config = ArmConfig(3, ARM_TRIALS // 10, HELDOUT_SEEDS[0])
+    digests = set()
+    for name in ("a.mcap", "b.mcap"):
+        record_arm(config, tmp_path / name)
+        digests.add(hashlib.sha256((tmp_path / name).read_bytes()).hexdigest())
+    assert len(digests) == 1
+
+
+def test_pr2_sample_without_a_log_tells_the_user(tmp_path):
+    result = _invoke("datasets", "build", "pr2-sample", "-o", tmp_path / "pr2")
+    assert result.exit_code == 0, result.output
+    assert "copy your PR2 logs" in result.stdout and "--source" in result.stdout
+    assert load_spec(tmp_path / "pr2" / "spec.toml").mode == "change"
+    assert list((tmp_path / "pr2" / "train").iterdir()) == []
+    card = (tmp_path / "pr2" / "README.md").read_text()
+    assert "laser_tilt_mount_joint" in card and "No log was given" in card
+
+
+@pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
+def test_pr2_sample_with_source_learns_and_replays(tmp_path):
+    folder = tmp_path / "pr2"
+    summary = build_dataset("pr2-sample", folder, source=PR2_LOG)
+    [episode] = summary.episodes
+    assert episode.split == "heldout" and Path(episode.path).read_bytes() == PR2_LOG.read_bytes()
+    assert f"heldout/{PR2_LOG.name}" in (folder / "README.md").read_text()
+    library = tmp_path / "pr2.parquet"
+    learned = _learn(library, folder / "spec.toml", [episode.path])
+    assert learned["steps"] > 100
+    assert _frozen_accuracy(library, [episode.path]) > 0.5
+    _replay_cli(library, [episode.path])
+
+
+def test_pr2_source_that_does_not_fit_is_refused(tmp_path):
+    log = tmp_path / "arm.mcap"
+    record_arm(ArmConfig(1, 10), log)
+    with pytest.raises(InputError, match=r"--source .*arm.mcap: the pr2-sample spec does not fit"):
+        build_dataset("pr2-sample", tmp_path / "pr2", source=log)
+    assert list((tmp_path / "pr2" / "heldout").iterdir()) == []
+
+
+def test_build_errors(tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "mine.txt").write_text("keep")
+    refused = _invoke("datasets", "build", "pr2-sample", "-o", tmp_path / "full")
+    assert refused.exit_code == 1 and refused.stdout == ""
+    assert "is not empty: pass --force" in refused.stderr
+    forced = _invoke("datasets", "build", "pr2-sample", "-o", tmp_path / "full", "--force")
+    assert forced.exit_code == 0 and (tmp_path / "full" / "mine.txt").read_text() == "keep"
+    unknown = _invoke("datasets", "build", "nope", "-o", tmp_path / "x")
+    assert unknown.exit_code == 1 and "choose one of pointer-arm, pointer-paper, pr2-sample" in unknown.stderr
+    with pytest.raises(InputError, match="--source is for pr2-sample"):
+        build_dataset("pointer-arm", tmp_path / "y", source=tmp_path / "full" / "mine.txt")
+    assert not (tmp_path / "y").exists()
