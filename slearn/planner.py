@@ -1,0 +1,457 @@
+"""Goal-seeking control from a pattern library (paper section II, last paragraph).
+
+"When a new goal is presented, the S-learning algorithm searches past sequences for series
+of actions that moved the system from its current state to the desired state." The
+planner reads a transition model off the containment index (:mod:`slearn.context_index`)
+and searches it:
+
+* **States** are short contexts: the current observation and the ``order`` steps before
+  it (``p a o`` for ``order=1``), as tokens. A longer context tells more (how far an
+  ``error`` move carried the pointer inside its bin, whether a ``delay`` command is still
+  pending) and separates a changed world from the old one: after the pointer's command
+  reversal, ``5 R 4`` is a context the library has never seen.
+* **Transitions**: for a state and a candidate action, the outcomes after the context's
+  suffixes of order 0 to ``order`` (collected as :mod:`slearn.predictor` does), blended
+  from short to long: each level is its own counts plus ``prior`` pseudo-counts of the
+  shorter level's distribution, a share ``novelty`` of which goes to *unknown*. What the
+  library has never seen is unknown; a context seen often speaks for itself.
+* **Search**: value iteration over the states reachable within ``horizon`` steps, goal
+  observations absorbing with value 1, each step discounted by ``discount`` (fewer steps
+  win), unknown outcomes worth ``curiosity`` (so an untried action from a new context
+  gets tried when the known routes are long). The probability reported is the library's
+  probability of reaching the goal within the horizon with the plan's closed-loop policy,
+  unknown outcomes counted as failures.
+* **Curiosity**: when no known route reaches the goal, the action tried least often from
+  the current observation (the library's counts) is taken, so stale patterns are retested
+  after the world changes.
+
+Closed loop: call :meth:`Planner.plan` again after every observed step. The planner is
+pure (no I/O); its search runs in compiled kernels over the index's arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numba
+import numpy as np
+
+from slearn import hashtrie
+from slearn.hashtrie import child, child_or_add
+from slearn.library import PatternLibrary
+from slearn.predictor import collect
+from slearn.stream import Step
+from slearn.tokens import ACTION, OBSERVATION
+
+_NO_STATE = -1
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the library says to do next.
+
+    Attributes:
+        actions: the planned action tuples, the one to issue now first (empty when the
+            goal is already observed); the most likely path, replanned every step.
+        observations: the most likely observations after each planned action.
+        probability: the library's probability of reaching the goal within the horizon
+            with this plan's closed-loop policy (1.0 when already there).
+        value: the discounted value the search maximised (probability, fewer steps).
+        explore: no known route: the first action was chosen by curiosity.
+    """
+
+    actions: tuple[tuple[int, ...], ...]
+    observations: tuple[tuple[int, ...], ...]
+    probability: float
+    value: float
+    explore: bool = False
+
+    @property
+    def action(self) -> tuple[int, ...] | None:
+        """The action tuple to issue now, ``None`` when the goal is already observed."""
+        return self.actions[0] if self.actions else None
+
+    @property
+    def reached(self) -> bool:
+        """Whether the goal is the current observation."""
+        return not self.actions and self.probability == 1.0
+
+
+REACHED = Plan((), (), 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """How the planner reads the library and searches (see the module docstring).
+
+    Args:
+        order: steps of history in a state (0 = the current observation only).
+        horizon: steps searched ahead.
+        discount: value kept per step (below 1: fewer steps win).
+        prior: pseudo-counts of the shorter context in a longer one's distribution.
+        novelty: share of those pseudo-counts that stands for an unknown outcome.
+        curiosity: value of reaching an unknown outcome.
+        min_probability: below this probability of reaching the goal there is no route.
+        max_states: states searched at most (the rest count as failures).
+    """
+
+    order: int = 1
+    horizon: int = 64
+    discount: float = 0.95
+    prior: float = 1.0
+    novelty: float = 0.5
+    curiosity: float = 0.5
+    min_probability: float = 0.01
+    max_states: int = 20_000
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.order <= 8:
+            raise ValueError("order must be between 0 and 8")
+        if self.horizon < 1 or self.max_states < 1:
+            raise ValueError("horizon and max_states must be positive")
+        if not 0.0 < self.discount <= 1.0:
+            raise ValueError("discount must be in (0, 1]")
+        if self.prior <= 0.0 or not 0.0 <= self.novelty <= 1.0:
+            raise ValueError("prior must be positive and novelty in [0, 1]")
+
+
+class Planner:
+    """Plans action sequences toward goal observations from a :class:`PatternLibrary`.
+
+    Args:
+        library: the library (it may keep learning between calls).
+        actions: candidate action tuples; default every non-empty action the library knows.
+        settings: search settings.
+    """
+
+    def __init__(self, library: PatternLibrary, actions: Iterable[Sequence[int]] | None = None,
+                 settings: PlannerSettings | None = None) -> None:
+        self.library = library
+        self.settings = settings or PlannerSettings()
+        self._actions = None if actions is None else [tuple(int(s) for s in a) for a in actions]
+        if self._actions is not None and not self._actions:
+            raise ValueError("the planner needs at least one candidate action")
+        width = 2 * self.settings.order + 1
+        self._states = hashtrie.new_trie(self.settings.max_states * width + 2)
+        self._node_state = np.full(len(self._states.parent), _NO_STATE, np.int32)
+        self._goal_cache: tuple[frozenset, int, np.ndarray] | None = None
+
+    @property
+    def actions(self) -> list[tuple[int, ...]]:
+        """The candidate action tuples."""
+        if self._actions is not None:
+            return self._actions
+        table = self.library.tokens
+        return [table.symbols(t) for t in range(len(table))
+                if table.kind(t) == ACTION and table.symbols(t)]
+
+    def plan(self, history: Sequence[Step], goal: int | Iterable[int]) -> Plan:
+        """The best plan from the end of ``history`` to an observation holding ``goal``.
+
+        Args:
+            history: ``(actions, observations)`` steps, oldest first; the last step's
+                observations are the current ones (only the last ``order + 1`` are read).
+            goal: an observation symbol, or several (any of them will do).
+        """
+        if not history:
+            raise ValueError("the planner needs at least the current observation")
+        goals = frozenset([goal] if isinstance(goal, (int, np.integer)) else (int(g) for g in goal))
+        if goals & set(history[-1][1]):
+            return REACHED
+        actions = self.actions
+        action_tokens = np.array([self.library.tokens.find(ACTION, a) for a in actions], np.int32)
+        start = self._state_tokens(history)
+        if start is None or not len(actions):
+            return self._blind(actions, action_tokens)
+        s = self.settings
+        index = self.library.context_index()
+        self._reset_states()
+        graph = _build(index, self._states, self._node_state, start, action_tokens,
+                       self._goal_mask(goals), s.order, s.prior, s.novelty, s.max_states, s.horizon)
+        q, reach = _values(*graph[:6], len(action_tokens), s.horizon, s.discount, s.curiosity)
+        return self._plan_from(graph, q, reach, actions, action_tokens, index, start)
+
+    def _plan_from(self, graph, q, reach, actions, action_tokens, index, start) -> Plan:
+        best = _best_action(q[: len(actions)], reach[: len(actions)])
+        if reach[best] < self.settings.min_probability:
+            return self._curious(actions, action_tokens, index, start, float(q[best]))
+        steps, outcomes = _path(*graph, q, reach, len(actions), self.settings.horizon)
+        table = self.library.tokens
+        return Plan(tuple(actions[j] for j in steps), tuple(table.symbols(int(o)) for o in outcomes),
+                    float(reach[best]), float(q[best]))
+
+    def _curious(self, actions, action_tokens, index, start, value) -> Plan:
+        tried = _tried(index, start, action_tokens)
+        j = int(np.argmin(tried))  # ties: the first candidate
+        return Plan((actions[j],), ((),), 0.0, value, explore=True)
+
+    def _blind(self, actions, action_tokens) -> Plan:
+        """No state (the current observation was never seen): try the least known action."""
+        if not actions:
+            raise ValueError("the library knows no action and none were given")
+        known = action_tokens >= 0
+        j = int(np.argmin(known))
+        return Plan((actions[j],), ((),), 0.0, 0.0, explore=True)
+
+    def _state_tokens(self, history: Sequence[Step]) -> np.ndarray | None:
+        """``o``, ``p a o``, ... for the last ``order`` steps, stopping at unknown tokens."""
+        table = self.library.tokens
+        tokens = []
+        for i in range(len(history) - 1, max(len(history) - 2 - self.settings.order, -1), -1):
+            obs = table.find(OBSERVATION, history[i][1])
+            if obs < 0:
+                break
+            tokens.append(obs)
+            act = table.find(ACTION, history[i][0]) if i > 0 else -1
+            if act < 0 or len(tokens) > self.settings.order:
+                break
+            tokens.append(act)
+        if len(tokens) % 2 == 0 and tokens:
+            tokens.pop()
+        return np.asarray(tokens[::-1], np.int32) if tokens else None
+
+    def _goal_mask(self, goals: frozenset) -> np.ndarray:
+        """Per token: an observation holding one of the goal symbols."""
+        n = len(self.library.tokens)
+        cached = self._goal_cache
+        if cached is not None and cached[0] == goals and cached[1] == n:
+            return cached[2]
+        offsets, symbols, kinds = self.library.tokens.export()
+        hit = np.isin(symbols, np.fromiter(goals, np.int32, len(goals)))
+        per_token = np.add.reduceat(hit.astype(np.int64), offsets[:-1]) if len(symbols) else np.zeros(n)
+        per_token[offsets[:-1] == offsets[1:]] = 0  # reduceat on empty tokens reads the next one
+        mask = (per_token > 0) & (kinds == OBSERVATION)
+        self._goal_cache = (goals, n, mask)
+        return mask
+
+    def _reset_states(self) -> None:
+        trie = self._states
+        used = int(trie.size[0])
+        self._node_state[:used] = _NO_STATE
+        trie.keys.fill(-1)
+        trie.size[0] = 1
+
+
+def _best_action(q: np.ndarray, reach: np.ndarray) -> int:
+    """Highest value; ties go to the higher probability, then the first candidate."""
+    order = np.lexsort((np.arange(len(q)), -reach, -np.round(q, 12)))
+    return int(order[0])
+
+
+@numba.njit(cache=True)
+def _weights(index, node, outcomes, k, out):
+    """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``."""
+    out[:k] = 0.0
+    total = 0.0
+    e = index.head[node]
+    while e != -1:
+        w = float(index.weight[e])
+        total += w
+        for i in range(k):
+            if outcomes[i] == index.outcome[e]:
+                out[i] = w
+        e = index.next[e]
+    return total
+
+
+@numba.njit(cache=True)
+def distribution(index, tokens, obs_pos, action, levels, prior, novelty, cand, outcomes, probs, work):
+    """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
+
+    Blends contexts of order 0 to ``levels - 1`` (see the module docstring). Fills
+    ``outcomes[:k]`` and ``probs[:k]``; returns ``(k, unknown probability)``.
+    """
+    if action < 0:
+        return 0, 1.0
+    n = collect(index, tokens, obs_pos, action, levels, cand)
+    if n == 0:
+        return 0, 1.0
+    k = 0
+    e = index.head[cand[0]]
+    while e != -1 and k < len(outcomes):
+        outcomes[k] = index.outcome[e]
+        k += 1
+        e = index.next[e]
+    total = _weights(index, cand[0], outcomes, k, probs)
+    probs[:k] /= total + prior
+    unknown = prior / (total + prior)
+    keep = prior * (1.0 - novelty)
+    for level in range(1, levels):
+        total = _weights(index, cand[level], outcomes, k, work) if level < n else 0.0
+        for i in range(k):
+            probs[i] = (work[i] * (level < n) + keep * probs[i]) / (total + prior)
+        unknown = (keep * unknown + prior * novelty) / (total + prior)
+    return k, unknown
+
+
+@numba.njit(cache=True)
+def _state_id(states, node_state, tokens, length, n_states, max_states):
+    """The id of the state ``tokens[:length]``, registering it as ``n_states`` if new."""
+    node = 0
+    for i in range(length):
+        found = child(states, node, tokens[i])
+        if found < 0:
+            if n_states >= max_states:
+                return -1
+            found = child_or_add(states, node, tokens[i])
+        node = found
+    if node_state[node] == -1 and n_states < max_states:
+        node_state[node] = n_states
+    return node_state[node]
+
+
+@numba.njit(cache=True)
+def _grown(array, size):
+    if size < len(array):
+        return array
+    out = np.empty(2 * len(array), array.dtype)
+    out[: len(array)] = array
+    return out
+
+
+@numba.njit(cache=True)
+def _build(index, states, node_state, start, actions, goal_mask, order, prior, novelty,
+           max_states, horizon):
+    """The reachable state graph: transitions per (state, action) with their probabilities.
+
+    Returns ``(n_states, offsets, next, prob, unknown, goal, last_obs)``; the transitions
+    of ``(s, j)`` are ``offsets[s * A + j]:offsets[s * A + j + 1]``.
+    """
+    width = 2 * order + 1
+    n_act = len(actions)
+    tok = np.full((max_states, width), -1, np.int32)
+    length = np.zeros(max_states, np.int32)
+    depth = np.zeros(max_states, np.int32)
+    goal = np.zeros(max_states, np.bool_)
+    offsets = np.zeros(max_states * n_act + 1, np.int64)
+    unknown = np.zeros(max_states * n_act)
+    nxt = np.zeros(256, np.int32)
+    prob = np.zeros(256)
+    cand = np.zeros(order + 1, np.int32)
+    n_tok = len(goal_mask)
+    outcomes = np.zeros(n_tok, np.int32)
+    probs = np.zeros(n_tok)
+    work = np.zeros(n_tok)
+    buf = np.zeros(width + 2, np.int32)
+    tok[0, : len(start)] = start
+    length[0] = len(start)
+    _state_id(states, node_state, start, len(start), 0, max_states)
+    n, m, s = 1, 0, 0
+    while s < n:
+        expand = not goal[s] and depth[s] < horizon
+        for j in range(n_act):
+            offsets[s * n_act + j + 1] = m
+            if not expand:
+                continue
+            levels = min(order, (length[s] - 1) // 2) + 1
+            k, unknown[s * n_act + j] = distribution(index, tok[s], length[s] - 1, actions[j], levels,
+                                                     prior, novelty, cand, outcomes, probs, work)
+            buf[: length[s]] = tok[s, : length[s]]
+            buf[length[s]] = actions[j]
+            keep = min(length[s] + 2, width)
+            first = length[s] + 2 - keep
+            for i in range(k):
+                if probs[i] <= 0.0:
+                    continue
+                buf[length[s] + 1] = outcomes[i]
+                t = _state_id(states, node_state, buf[first:], keep, n, max_states)
+                if t < 0:
+                    continue  # out of room: the mass is lost
+                if t == n:
+                    tok[n, :keep] = buf[first: first + keep]
+                    length[n] = keep
+                    depth[n] = depth[s] + 1
+                    goal[n] = goal_mask[outcomes[i]]
+                    n += 1
+                nxt = _grown(nxt, m)
+                prob = _grown(prob, m)
+                nxt[m] = t
+                prob[m] = probs[i]
+                m += 1
+            offsets[s * n_act + j + 1] = m
+        s += 1
+    last_obs = np.empty(n, np.int32)
+    for i in range(n):
+        last_obs[i] = tok[i, length[i] - 1]
+    return n, offsets, nxt, prob, unknown, goal, last_obs
+
+
+@numba.njit(cache=True)
+def _q(offsets, nxt, prob, unknown, value, reach, sa, discount, curiosity):
+    v, r = 0.0, 0.0
+    for e in range(offsets[sa], offsets[sa + 1]):
+        v += prob[e] * value[nxt[e]]
+        r += prob[e] * reach[nxt[e]]
+    return discount * (v + unknown[sa] * curiosity), r
+
+
+@numba.njit(cache=True)
+def _values(n, offsets, nxt, prob, unknown, goal, n_act, horizon, discount, curiosity):
+    """Value iteration; returns ``(q, reach)`` per (state, action) of the final sweep."""
+    value = np.where(goal[:n], 1.0, 0.0)
+    reach = value.copy()
+    q = np.zeros(n * n_act)
+    r = np.zeros(n * n_act)
+    for _ in range(horizon):
+        new_value = value.copy()
+        new_reach = reach.copy()
+        for s in range(n):
+            if goal[s]:
+                continue
+            best, best_r = -1.0, -1.0
+            for j in range(n_act):
+                v, p = _q(offsets, nxt, prob, unknown, value, reach, s * n_act + j, discount, curiosity)
+                q[s * n_act + j], r[s * n_act + j] = v, p
+                if v > best + 1e-12 or (v > best - 1e-12 and p > best_r):
+                    best, best_r = v, p
+            new_value[s], new_reach[s] = best, best_r
+        value, reach = new_value, new_reach
+    return q, r
+
+
+@numba.njit(cache=True)
+def _path(n, offsets, nxt, prob, unknown, goal, last_obs, q, r, n_act, horizon):
+    """The greedy policy's most likely path from state 0: action indices and outcomes."""
+    steps = np.zeros(horizon, np.int32)
+    outcomes = np.zeros(horizon, np.int32)
+    seen = np.zeros(n, np.bool_)
+    s, length = 0, 0
+    while length < horizon and not goal[s] and not seen[s]:
+        seen[s] = True
+        best = 0
+        for j in range(1, n_act):
+            a, b = q[s * n_act + j], q[s * n_act + best]
+            if a > b + 1e-12 or (a > b - 1e-12 and r[s * n_act + j] > r[s * n_act + best]):
+                best = j
+        sa = s * n_act + best
+        top, top_p = -1, unknown[sa]
+        for e in range(offsets[sa], offsets[sa + 1]):
+            if prob[e] > top_p:
+                top, top_p = nxt[e], prob[e]
+        steps[length] = best
+        outcomes[length] = last_obs[top] if top >= 0 else -1
+        length += 1
+        if top < 0:
+            break
+        s = top
+    return steps[:length], outcomes[:length]
+
+
+@numba.njit(cache=True)
+def _tried(index, start, actions):
+    """How often each action was taken from the current observation (order-0 weight)."""
+    out = np.zeros(len(actions))
+    for j in range(len(actions)):
+        if actions[j] < 0:
+            continue
+        node = child(index.trie, 0, actions[j])
+        if node >= 0:
+            node = child(index.trie, node, start[len(start) - 1])
+        if node < 0:
+            continue
+        e = index.head[node]
+        while e != -1:
+            out[j] += index.weight[e]
+            e = index.next[e]
+    return out
