@@ -32,6 +32,7 @@ from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
 
+from slearn.files import give_default_mode
 from slearn import __version__
 from slearn.errors import InputError, SlearnError
 
@@ -79,6 +80,7 @@ class EpisodeWriter:
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
                                    dir=self.path.parent)
         self._tmp_path = Path(tmp)
+        give_default_mode(fd)
         self._file = os.fdopen(fd, "wb")
         self._writer = Writer(self._file, chunk_size=self._chunk_size,
                               compression=CompressionType.ZSTD)

@@ -15,11 +15,12 @@ from pathlib import Path
 
 
 def source_fingerprint(package_dir: Path) -> str:
-    """A short hash of the names, sizes and modification times of the package's sources."""
+    """A short hash of the sources of the package's modules that hold compiled kernels."""
     digest = hashlib.sha1()
     for path in sorted(package_dir.glob("*.py")):
-        stat = path.stat()
-        digest.update(f"{path.name}:{stat.st_size}:{stat.st_mtime_ns};".encode())
+        source = path.read_bytes()
+        if b"numba.njit" in source:
+            digest.update(path.name.encode() + b"\0" + source)
     return digest.hexdigest()[:16]
 
 

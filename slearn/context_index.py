@@ -21,17 +21,30 @@ import numpy as np
 from slearn import hashtrie
 from slearn.hashtrie import child_or_add, path_tokens
 
-ContextIndex = namedtuple("ContextIndex", "trie head outcome weight last_seen next size")
-"""``head`` int32 per trie node (first entry or -1); entries are linked lists through
-``next``; ``size`` int64[1] counts entries."""
+ContextIndex = namedtuple(
+    "ContextIndex", "trie head best newest total outcome weight last_seen next size entry_keys entry_vals")
+"""Per context node: ``head`` (first entry or -1; entries are linked through ``next``),
+``best`` (the entry of largest weight, then newest, then smallest outcome), ``newest``
+(the entry seen last) and ``total`` (summed weight), all kept up to date in O(1) because
+weights and recency only grow. Per entry: ``outcome``, ``weight``, ``last_seen``.
+``entry_keys``/``entry_vals`` hash ``node << 32 | outcome`` to the entry; ``size`` int64[1]
+counts entries."""
 
 
 def new_index(capacity: int = 1024) -> ContextIndex:
     """An empty index with room for ``capacity`` nodes and entries."""
     trie = hashtrie.new_trie(capacity)
-    return ContextIndex(trie, np.full(len(trie.parent), -1, np.int32), np.zeros(capacity, np.int32),
-                        np.zeros(capacity, np.int64), np.zeros(capacity, np.int64),
-                        np.full(capacity, -1, np.int32), np.zeros(1, np.int64))
+    nodes = len(trie.parent)
+    slots = _slots_for(capacity)
+    return ContextIndex(trie, np.full(nodes, -1, np.int32), np.full(nodes, -1, np.int32),
+                        np.full(nodes, -1, np.int32), np.zeros(nodes, np.int64),
+                        np.zeros(capacity, np.int32), np.zeros(capacity, np.int64),
+                        np.zeros(capacity, np.int64), np.full(capacity, -1, np.int32),
+                        np.zeros(1, np.int64), np.full(slots, -1, np.int64), np.zeros(slots, np.int32))
+
+
+def _slots_for(capacity: int) -> int:
+    return 1 << int(2 * capacity - 1).bit_length()
 
 
 def free_room(index: ContextIndex) -> int:
@@ -42,45 +55,116 @@ def free_room(index: ContextIndex) -> int:
 def grow(index: ContextIndex, min_free: int) -> ContextIndex:
     """A copy with room for at least ``min_free`` more nodes and entries."""
     trie = hashtrie.grow(index.trie, min_free)
-    head = np.full(len(trie.parent), -1, np.int32)
-    head[: len(index.head)] = index.head
+    per_node = [_extended(a, len(trie.parent), fill)
+                for a, fill in ((index.head, -1), (index.best, -1), (index.newest, -1), (index.total, 0))]
     n = int(index.size[0])
     capacity = len(index.outcome)
     while capacity - n < min_free:
         capacity *= 2
-    arrays = [index.outcome, index.weight, index.last_seen, index.next]
-    if capacity != len(index.outcome):
-        fresh = [np.zeros(capacity, a.dtype) for a in arrays]
-        for new, old in zip(fresh, arrays):
-            new[:n] = old[:n]
-        arrays = fresh
-    return ContextIndex(trie, head, *arrays, index.size)
+    if capacity == len(index.outcome):
+        return ContextIndex(trie, *per_node, index.outcome, index.weight, index.last_seen, index.next,
+                            index.size, index.entry_keys, index.entry_vals)
+    per_entry = [_extended(a, capacity, fill) for a, fill in
+                 ((index.outcome, 0), (index.weight, 0), (index.last_seen, 0), (index.next, -1))]
+    slots = _slots_for(capacity)
+    grown = ContextIndex(trie, *per_node, *per_entry, index.size, np.full(slots, -1, np.int64),
+                         np.zeros(slots, np.int32))
+    _rehash_entries(grown, int(trie.size[0]))
+    return grown
+
+
+def _extended(array: np.ndarray, size: int, fill) -> np.ndarray:
+    if len(array) == size:
+        return array
+    out = np.full(size, fill, array.dtype)
+    out[: len(array)] = array
+    return out
 
 
 def nbytes(index: ContextIndex) -> int:
     """Bytes held by the index arrays."""
-    arrays = (*index.trie[:4], index.head, index.outcome, index.weight, index.last_seen, index.next)
-    return sum(a.nbytes for a in arrays)
+    return sum(a.nbytes for a in (*index.trie[:4], *index[1:10], *index[11:]))
+
+
+@numba.njit(cache=True, inline="always")
+def _slot(key, mask):
+    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
+
+
+@numba.njit(cache=True)
+def _rehash_entries(index, n_nodes):
+    mask = len(index.entry_keys) - 1
+    for node in range(n_nodes):
+        e = index.head[node]
+        while e != -1:
+            key = (np.int64(node) << 32) | np.int64(index.outcome[e])
+            s = _slot(key, mask)
+            while index.entry_keys[s] != -1:
+                s = (s + 1) & mask
+            index.entry_keys[s] = key
+            index.entry_vals[s] = e
+            e = index.next[e]
+
+
+@numba.njit(cache=True)
+def find_entry(index, node, outcome):
+    """The entry of ``outcome`` after the context at ``node``, or -1."""
+    key = (np.int64(node) << 32) | np.int64(outcome)
+    mask = len(index.entry_keys) - 1
+    s = _slot(key, mask)
+    while True:
+        k = index.entry_keys[s]
+        if k == key:
+            return index.entry_vals[s]
+        if k == -1:
+            return -1
+        s = (s + 1) & mask
+
+
+@numba.njit(cache=True)
+def _new_entry(index, node, outcome):
+    key = (np.int64(node) << 32) | np.int64(outcome)
+    mask = len(index.entry_keys) - 1
+    s = _slot(key, mask)
+    while index.entry_keys[s] != -1:
+        s = (s + 1) & mask
+    e = index.size[0]
+    index.entry_keys[s] = key
+    index.entry_vals[s] = e
+    index.outcome[e] = outcome
+    index.next[e] = index.head[node]
+    index.head[node] = e
+    index.size[0] = e + 1
+    return e
+
+
+@numba.njit(cache=True)
+def ranks_above(index, a, b):
+    """Whether entry ``a`` ranks above entry ``b``: weight, then recency, then smaller outcome."""
+    if index.weight[a] != index.weight[b]:
+        return index.weight[a] > index.weight[b]
+    if index.last_seen[a] != index.last_seen[b]:
+        return index.last_seen[a] > index.last_seen[b]
+    return index.outcome[a] < index.outcome[b]
 
 
 @numba.njit(cache=True)
 def add_entry(index, node, outcome, delta, last_seen):
     """Add ``delta`` to the weight of ``outcome`` after the context at ``node``."""
-    e = index.head[node]
-    while e != -1:
-        if index.outcome[e] == outcome:
-            index.weight[e] += delta
-            if last_seen > index.last_seen[e]:
-                index.last_seen[e] = last_seen
-            return
-        e = index.next[e]
-    e = index.size[0]
-    index.outcome[e] = outcome
-    index.weight[e] = delta
-    index.last_seen[e] = last_seen
-    index.next[e] = index.head[node]
-    index.head[node] = e
-    index.size[0] = e + 1
+    e = find_entry(index, node, outcome)
+    if e == -1:
+        e = _new_entry(index, node, outcome)
+    index.weight[e] += delta
+    if last_seen > index.last_seen[e]:
+        index.last_seen[e] = last_seen
+    index.total[node] += delta
+    best = index.best[node]
+    if best == -1 or (best != e and ranks_above(index, e, best)):
+        index.best[node] = e
+    newest = index.newest[node]
+    if newest == -1 or index.last_seen[e] > index.last_seen[newest] or (
+            index.last_seen[e] == index.last_seen[newest] and outcome < index.outcome[newest]):
+        index.newest[node] = e
 
 
 @numba.njit(cache=True)

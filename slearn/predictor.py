@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from slearn.context_index import find_entry, ranks_above
 from slearn.hashtrie import child
 from slearn.library import PatternLibrary
 from slearn.tokens import ACTION, OBSERVATION
@@ -161,29 +162,10 @@ def collect(index, tokens, obs_pos, action, max_orders, cand):
 
 
 @numba.njit(cache=True)
-def _better(weight, last, outcome, best_weight, best_last, best_outcome):
-    if weight != best_weight:
-        return weight > best_weight
-    if last != best_last:
-        return last > best_last
-    return outcome < best_outcome
-
-
-@numba.njit(cache=True)
 def best_outcome(index, node):
-    """``(by weight, most recent, total weight)`` outcomes after a context."""
-    best, best_w, best_last, total = -1, np.int64(-1), np.int64(-1), np.int64(0)
-    newest, newest_last = -1, np.int64(-1)
-    e = index.head[node]
-    while e != -1:
-        w, last, o = index.weight[e], index.last_seen[e], index.outcome[e]
-        total += w
-        if _better(w, last, o, best_w, best_last, best):
-            best, best_w, best_last = o, w, last
-        if last > newest_last or (last == newest_last and o < newest):
-            newest, newest_last = o, last
-        e = index.next[e]
-    return best, newest, total, best_w
+    """``(most frequent, most recent, total weight, weight of the most frequent)`` after a context."""
+    best = index.best[node]
+    return index.outcome[best], index.outcome[index.newest[node]], index.total[node], index.weight[best]
 
 
 N_CONFIDENCE = 4
@@ -255,40 +237,28 @@ def rank(index, cand, n, chosen, outcome, top_tok, top_score):
 
 @numba.njit(cache=True)
 def _share(index, node, outcome):
-    total, mine = np.int64(0), np.int64(0)
-    e = index.head[node]
-    while e != -1:
-        total += index.weight[e]
-        if index.outcome[e] == outcome:
-            mine = index.weight[e]
-        e = index.next[e]
-    return mine / total
+    e = find_entry(index, node, outcome)
+    return 0.0 if e == -1 else index.weight[e] / index.total[node]
 
 
 @numba.njit(cache=True)
 def _rank_node(index, node, top_tok, top_score, filled):
-    total = np.int64(0)
-    e = index.head[node]
-    while e != -1:
-        total += index.weight[e]
-        e = index.next[e]
     k = len(top_tok)
     while filled < k:
-        best, best_w, best_last = -1, np.int64(-1), np.int64(-1)
+        best = -1
         e = index.head[node]
         while e != -1:
-            o = index.outcome[e]
             taken = False
             for i in range(filled):
-                if top_tok[i] == o:
+                if top_tok[i] == index.outcome[e]:
                     taken = True
-            if not taken and _better(index.weight[e], index.last_seen[e], o, best_w, best_last, best):
-                best, best_w, best_last = o, index.weight[e], index.last_seen[e]
+            if not taken and (best == -1 or ranks_above(index, e, best)):
+                best = e
             e = index.next[e]
         if best < 0:
             break
-        top_tok[filled] = best
-        top_score[filled] = best_w / total
+        top_tok[filled] = index.outcome[best]
+        top_score[filled] = index.weight[best] / index.total[node]
         filled += 1
     return filled
 
