@@ -1,0 +1,449 @@
+"""Replay: the evaluation core, baselines, metrics, curves, reports and annotated logs."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import shutil
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from slearn.library import PatternLibrary
+from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
+from slearn.recorders.record_pointer import record_pointer
+from slearn.replay.baselines import Baselines
+from slearn.replay.evaluate import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
+                                    iter_evaluation, replay_logs)
+from slearn.replay.metrics import nice_window
+from slearn.spec import pointer_spec
+from slearn.stream import Episode
+from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+
+
+def pointer_episode(condition="simple", trials=2000, seed=0, **kw):
+    return simulate(PointerConfig(condition, trials=trials, seed=seed, **kw)).to_episode()
+
+
+def trained(seeds=(0, 1, 2), trials=3000, baselines=True):
+    """A library (and baselines) learned on pointer ``simple`` episodes."""
+    library = PatternLibrary()
+    counted = Baselines(library.max_length - 1) if baselines else None
+    for seed in seeds:
+        episode = pointer_episode(trials=trials, seed=seed)
+        library.learn(episode)
+        if counted is not None:
+            counted.learn_tokens(library.tokens.tokenize(episode))
+    return library, counted
+
+
+def held_out(*episodes):
+    return [(f"episode{i}", e, None) for i, e in enumerate(episodes)]
+
+
+# --- acceptance ----------------------------------------------------------------------------
+
+def test_library_learned_on_simple_seeds_0_to_2_scores_above_99_5_on_seed_3_frozen():
+    library, baselines = trained()
+    n_patterns = len(library)
+    result = evaluate(library, held_out(pointer_episode(trials=5000, seed=3)), pointer_vocabulary(),
+                      baselines=baselines)
+    assert result.mode == "frozen" and result.baseline_fit == FIT_TRAINING
+    assert result.totals.events == 5000
+    assert result.accuracy >= 0.995
+    assert len(library) == n_patterns and library.clock == 9000  # frozen: nothing learned
+
+
+def reversal_curves(online):
+    library, baselines = trained(trials=3000)
+    episode = pointer_episode("reversal", trials=6000, seed=5, switch_trial=2000)
+    result = evaluate(library, held_out(episode), pointer_vocabulary(), online=online,
+                      window=500, baselines=baselines)
+    return result.episodes[0].curve.accuracy()
+
+
+def test_library_learned_before_a_reversal_drops_at_the_switch_and_recovers_online():
+    frozen, online = reversal_curves(False), reversal_curves(True)
+    assert len(frozen) == 12
+    assert frozen[:4].min() >= 0.99 and frozen[4:].max() <= 0.05  # the drop stays
+    assert online[:4].min() >= 0.99
+    assert online[4] < 0.95  # the drop ...
+    assert online[-4:].min() >= 0.99  # ... and the recovery
+
+
+# --- the generator ---------------------------------------------------------------------------
+
+def test_iter_evaluation_yields_one_checkpoint_per_episode_with_running_totals():
+    library, _ = trained(seeds=(0,), trials=2000)
+    episodes = held_out(pointer_episode(trials=300, seed=3), pointer_episode(trials=500, seed=4))
+    points = list(iter_evaluation(library, episodes, pointer_vocabulary()))
+    assert [p.episode.name for p in points] == ["episode0", "episode1"]
+    assert [p.predictions for p in points] == [300, 800]
+    assert points[0].totals.events == 300 and points[1].totals.events == 800
+    assert points[1].totals.correct == points[0].episode.tally.correct + points[1].episode.tally.correct
+    assert len(points[0].outcome) == 300 and points[1].elapsed_s >= points[0].elapsed_s
+
+
+def test_online_learns_and_frozen_does_not():
+    library = PatternLibrary()
+    episode = pointer_episode(trials=3000, seed=1)
+    frozen = evaluate(library, held_out(episode), pointer_vocabulary())
+    assert frozen.totals.abstained == 3000 and frozen.accuracy == 0 and len(library) == 0
+    online = evaluate(library, held_out(episode), pointer_vocabulary(), online=True)
+    assert len(library) > 0 and online.mode == "online"
+    assert online.episodes[0].curve.accuracy()[-1] > 0.95
+
+
+def test_windows_add_up_to_the_episode_and_default_to_about_fifty():
+    library, _ = trained(seeds=(0,), trials=1000)
+    result = evaluate(library, held_out(pointer_episode(trials=1234, seed=3)), pointer_vocabulary())
+    curve = result.episodes[0].curve
+    assert result.window == nice_window(1234) == 50
+    assert curve.events.sum() == result.totals.events == 1234
+    assert curve.correct.sum() == result.totals.correct
+    assert curve.start[-1] == 1200 and curve.events[-1] == 34
+
+
+def test_top_k_counts_the_ranked_guesses():
+    library, _ = trained(seeds=(0,), trials=300)
+    episode = pointer_episode("error", trials=2000, seed=3, error_deg=8.0)
+    one = evaluate(library, held_out(episode), pointer_vocabulary(), top_k=1, online=True)
+    three = evaluate(PatternLibrary.from_export(*_copy(trained(seeds=(0,), trials=300)[0])),
+                     held_out(episode), pointer_vocabulary(), top_k=3, online=True)
+    assert one.totals.top_k == one.totals.correct
+    assert three.totals.correct == one.totals.correct
+    assert three.totals.top_k > three.totals.correct
+
+
+def _copy(library):
+    return (library.export(), library.tokens, library.clock, library.max_length)
+
+
+# --- abstentions, unseen values, empty steps -------------------------------------------------
+
+def two_channel_vocabulary():
+    vocabulary = Vocabulary()
+    vocabulary.add_channel("u", ACTION)
+    vocabulary.add_channel("a", OBSERVATION)
+    vocabulary.add_channel("b", OBSERVATION)
+    return vocabulary
+
+
+def two_channel_episode(vocabulary, steps, seed, start=0):
+    """``a`` follows the action deterministically (mod 5); ``b`` is a coin flip."""
+    rng = random.Random(seed)
+    a = start
+    out = [((), (vocabulary.symbol("a", a), vocabulary.symbol("b", rng.randint(0, 1))))]
+    for _ in range(steps):
+        u = rng.randint(0, 1)
+        a = (a + (1 if u else -1)) % 5
+        out.append(((vocabulary.symbol("u", u),),
+                    (vocabulary.symbol("a", a), vocabulary.symbol("b", rng.randint(0, 1)))))
+    return Episode.from_steps(out)
+
+
+def test_several_observation_channels_are_scored_channel_by_channel():
+    vocabulary = two_channel_vocabulary()
+    library = PatternLibrary(max_length=2)
+    for seed in range(3):
+        library.learn(two_channel_episode(vocabulary, 3000, seed))
+    result = evaluate(library, held_out(two_channel_episode(vocabulary, 4000, 9)), vocabulary)
+    channels = {c["channel"]: c for c in result.channels.to_list()}
+    assert list(channels) == ["a", "b"]
+    assert channels["a"]["events"] == channels["b"]["events"] == 4000
+    assert channels["a"]["accuracy"] > 0.99
+    assert 0.4 < channels["b"]["accuracy"] < 0.6
+    assert abs(result.accuracy - channels["b"]["accuracy"]) < 0.02
+    assert all(label.startswith("a=") for p, a, _ in result.confusions for label in (p, a))
+
+
+def test_unseen_values_are_abstentions_not_crashes():
+    vocabulary = pointer_vocabulary()
+    library, _ = trained(seeds=(0,), trials=500, baselines=False)
+    vocabulary.add_channel("/pointer/position", OBSERVATION)
+    strange = vocabulary.symbol("/pointer/position", 99)
+    steps = pointer_episode(trials=20, seed=3).steps()
+    steps[10] = (steps[10][0], (strange,))
+    result = evaluate(library, held_out(Episode.from_steps(steps)), vocabulary)
+    outcome_events = result.totals.events
+    assert outcome_events == 20
+    assert result.totals.abstained == 1  # the step after the unseen value has no context
+    assert result.totals.correct == 18  # and the unseen value itself was predicted wrong
+    assert result.totals.to_dict()["abstention_rate"] == 0.05
+    assert "/pointer/position=99" in [a for _, a, _ in result.confusions]
+
+
+def test_steps_without_observations_are_not_scored():
+    vocabulary = pointer_vocabulary()
+    library, _ = trained(seeds=(0,), trials=500, baselines=False)
+    steps = pointer_episode(trials=30, seed=3).steps()
+    steps[5] = (steps[5][0], ())
+    result = evaluate(library, held_out(Episode.from_steps(steps)), vocabulary)
+    assert result.episodes[0].steps == 30 and result.totals.events == 29
+
+
+def test_surprise_is_zero_when_sure_and_right_and_the_floor_when_abstaining():
+    library, _ = trained(seeds=(0,), trials=1000)
+    points = list(iter_evaluation(PatternLibrary(), held_out(pointer_episode(trials=5, seed=1)),
+                                  pointer_vocabulary()))
+    assert (points[0].outcome.surprise_bits() == -math.log2(SURPRISE_FLOOR)).all()
+    points = list(iter_evaluation(library, held_out(pointer_episode(trials=50, seed=1)),
+                                  pointer_vocabulary()))
+    outcome = points[0].outcome
+    right = outcome.predicted == outcome.actual
+    assert right.all() and (outcome.surprise_bits() == 0).all()
+
+
+# --- baselines --------------------------------------------------------------------------------
+
+def naive_baselines(train, test, max_order, learn):
+    """Dicts of contexts (tuples of tokens) -> outcome counts; ties go to the first to the count."""
+    counts, best = {}, {}
+
+    def contexts(tokens, obs_pos):
+        k_max = min(max_order, obs_pos // 2)
+        return [tuple(tokens[obs_pos - 2 * k: obs_pos + 2]) for k in range(k_max + 1)]
+
+    def count(tokens, obs_pos):
+        truth = tokens[obs_pos + 2]
+        for ctx in contexts(tokens, obs_pos):
+            c = counts.setdefault(ctx, Counter())
+            c[truth] += 1
+            if c[truth] > best.get(ctx, (None, 0))[1]:
+                best[ctx] = (truth, c[truth])
+
+    for tokens in train:
+        for s in range(1, (len(tokens) - 1) // 2 + 1):
+            count(tokens, 2 * s - 2)
+    out = []
+    for s in range(1, (len(test) - 1) // 2 + 1):
+        seen = [best[c][0] for c in contexts(test, 2 * s - 2) if c in best]
+        out.append((seen[0] if seen else -1, seen[-1] if seen else -1))
+        if learn:
+            count(test, 2 * s - 2)
+    return out
+
+
+@pytest.mark.parametrize("max_order", [0, 1, 4])
+@pytest.mark.parametrize("learn", [False, True])
+def test_baselines_match_a_naive_model(max_order, learn):
+    rng = np.random.default_rng(max_order)
+    train = [rng.integers(0, 3, size=2 * n + 1).astype(np.int32) * 2 for n in (300, 50)]
+    for t in train:
+        t[1::2] = rng.integers(0, 2, size=len(t) // 2) * 2 + 1  # actions odd, observations even
+    test = train[0][:121].copy()
+    test[::2] = rng.integers(0, 4, size=61) * 2  # includes an observation never seen
+    baselines = Baselines(max_order)
+    for tokens in train:
+        baselines.learn_tokens(tokens)
+    got = baselines.run_tokens(test, learn=learn)
+    want = naive_baselines([t.tolist() for t in train], test.tolist(), max_order, learn)
+    assert list(zip(got.frequency.tolist(), got.markov.tolist())) == want
+
+
+def test_baselines_grow_past_their_first_arrays():
+    episode = pointer_episode("error", trials=20000, seed=2, error_deg=9.0)
+    library = PatternLibrary()
+    tokens = library.tokens.tokenize(episode)
+    baselines = Baselines(4)
+    guesses = baselines.run_tokens(tokens, learn=True)
+    assert len(baselines._trie.parent) > 1024 and baselines.steps_learned == 20000
+    assert (guesses.frequency[-2000:] == tokens[2::2][-2000:]).mean() > 0.4
+
+
+def test_without_training_data_baselines_are_prequential_and_say_so():
+    library, _ = trained(seeds=(0,), trials=2000)
+    result = evaluate(library, held_out(pointer_episode(trials=2000, seed=3)), pointer_vocabulary())
+    assert result.baseline_fit == FIT_PREQUENTIAL
+    assert "lower bound" in result.notes[-1]
+    assert result.totals.frequency_abstained > 0  # they start empty
+    assert result.totals.rate("frequency") > 0.9
+
+
+# --- JSON, plots, report -------------------------------------------------------------------------
+
+def small_result():
+    library, baselines = trained(seeds=(0,), trials=1500)
+    episode = pointer_episode("reversal", trials=1000, seed=3, switch_trial=500)
+    return evaluate(library, held_out(episode, pointer_episode(trials=400, seed=4)),
+                    pointer_vocabulary(), baselines=baselines, window=100)
+
+
+def test_json_document_is_versioned_and_strict_json():
+    doc = small_result().to_dict()
+    text = json.dumps(doc, allow_nan=False)
+    doc = json.loads(text)
+    assert doc["schema"] == SCHEMA == "slearn.replay/1"
+    assert {"mode", "top_k", "window", "totals", "baselines", "channels", "episodes", "confusions",
+            "speed", "notes", "warnings"} <= set(doc)
+    totals = doc["totals"]
+    assert totals["events"] == 1400
+    lift = 100 * (totals["accuracy"] - totals["baselines"]["markov"]["accuracy"])
+    assert totals["baselines"]["markov"]["lift_points"] == pytest.approx(lift, abs=1e-3)
+    assert [len(e["curve"]) for e in doc["episodes"]] == [10, 4]
+    assert doc["confusions"][0]["count"] >= doc["confusions"][-1]["count"]
+    assert doc["confusions"][0]["predicted"].startswith("/pointer/position=")
+
+
+def test_plot_is_a_png_and_report_is_one_self_contained_html_file(tmp_path):
+    from slearn.replay.plots import curves_png, write_curves
+    from slearn.replay.report import format_table, render_html
+
+    result = small_result()
+    png = curves_png(result)
+    assert png.startswith(b"\x89PNG")
+    write_curves(result, tmp_path / "c.png")
+    assert (tmp_path / "c.png").read_bytes().startswith(b"\x89PNG")
+    page = render_html(result, png)
+    assert page.count("data:image/png;base64,") == 1
+    assert "src=\"http" not in page and "<script" not in page
+    assert "frequency baseline" in page and "Most frequent confusions" in page
+    table = format_table(result)
+    assert "markov baseline" in table and "/pointer/position" in table
+
+
+# --- logs on disk ---------------------------------------------------------------------------------
+
+storage = pytest.importorskip("slearn.storage")
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Pointer logs (simple seeds 0-3, a reversal) and a library learned on seeds 0-2."""
+    from slearn.serialize import read_episodes
+
+    folder = tmp_path_factory.mktemp("replay")
+    paths = {}
+    for seed in range(4):
+        paths[f"simple{seed}"] = folder / f"simple{seed}.mcap"
+        record_pointer(PointerConfig("simple", trials=2500, seed=seed), paths[f"simple{seed}"])
+    paths["reversal"] = folder / "reversal.mcap"
+    record_pointer(PointerConfig("reversal", trials=3000, seed=9, switch_trial=1000), paths["reversal"])
+    library, vocabulary, spec = PatternLibrary(), Vocabulary(), pointer_spec()
+    training = [paths[f"simple{s}"] for s in range(3)]
+    for _, episode, _ in read_episodes(training, spec, vocabulary):
+        library.learn(episode)
+    paths["library"] = folder / "library.parquet"
+    storage.save_library(paths["library"], library, vocabulary, spec=spec,
+                         params={"scoring": "adaptive"},
+                         provenance={"inputs": [storage.file_record(p) for p in training]})
+    paths["bare"] = folder / "bare.parquet"
+    storage.save_library(paths["bare"], library, vocabulary, spec=None, params={}, provenance={})
+    return paths
+
+
+def test_replay_logs_reads_as_at_learning_and_fits_baselines_on_the_provenance_inputs(logs):
+    result = replay_logs([logs["simple3"]], library=logs["library"])
+    assert result.accuracy >= 0.995 and result.totals.events == 2500
+    assert result.baseline_fit == FIT_TRAINING
+    assert result.setup["baseline_logs"] == [str(logs[f"simple{s}"]) for s in range(3)]
+    assert result.setup["library"]["patterns"] > 0 and result.setup["spec"]["mode"] == "message"
+    assert not result.truncated and result.total_s >= result.elapsed_s
+
+
+def test_replay_logs_without_spec_needs_one_and_with_spec_alone_learns_online(logs, tmp_path):
+    from slearn.errors import InputError
+
+    with pytest.raises(InputError, match="without a spec"):
+        replay_logs([logs["simple3"]], library=logs["bare"])
+    spec = tmp_path / "pointer.toml"
+    spec.write_text(POINTER_TOML)
+    result = replay_logs([logs["simple3"]], library=logs["bare"], spec=spec)
+    assert result.accuracy >= 0.995 and result.baseline_fit == FIT_PREQUENTIAL
+    empty = replay_logs([logs["simple0"], logs["simple3"]], spec=spec)
+    assert empty.mode == "online" and empty.setup["library"] is None
+    assert empty.episodes[0].tally.accuracy < empty.episodes[1].tally.accuracy
+
+
+POINTER_TOML = """mode = "message"
+[[channel]]
+topic = "/pointer/command"
+field = "command"
+role = "action"
+values = ["L", "R"]
+[[channel]]
+topic = "/pointer/position"
+field = "position"
+role = "observation"
+"""
+
+
+def test_annotated_log_holds_the_source_and_one_prediction_per_predicted_event(logs, tmp_path):
+    from mcap.reader import make_reader
+
+    from slearn.replay.annotate import write_annotated
+
+    result = replay_logs([logs["reversal"]], library=logs["library"], keep_outcomes=True)
+    [summary] = write_annotated(result, tmp_path / "annotated.mcap")
+    assert summary.predictions == result.totals.events == 3000
+    with open(tmp_path / "annotated.mcap", "rb") as f:
+        reader = make_reader(f)
+        messages = list(reader.iter_messages())
+        schemas = {s.name: s.encoding for s in reader.get_summary().schemas.values()}
+    topics = Counter(channel.topic for _, channel, _ in messages)
+    assert topics == {"/pointer/command": 3000, "/pointer/position": 3001, "/pointer/angle": 3001,
+                      "/slearn/prediction": 3000, "/slearn/correct": 3000, "/slearn/surprise": 3000}
+    assert schemas["slearn.replay.Prediction"] == "jsonschema"
+    assert schemas["slearn.pointer.Position"] == "jsonschema"
+    times = {t: [m.log_time for _, c, m in messages if c.topic == t] for t in topics}
+    assert times["/slearn/prediction"] == times["/pointer/position"][1:]  # aligned with the truth
+    predictions = [json.loads(m.data) for _, c, m in messages if c.topic == "/slearn/prediction"]
+    right = [p["correct"] for p in predictions]
+    assert sum(right) == result.totals.correct
+    assert all(right[:1000]) and not any(right[1000:])  # frozen: the reversal is never learned
+    surprise = [json.loads(m.data)["bits"] for _, c, m in messages if c.topic == "/slearn/surprise"]
+    assert max(surprise[:1000]) < 0.01 and min(surprise[1000:]) > 1
+    assert predictions[0]["actual"].startswith("/pointer/position=")
+
+
+def test_annotating_several_logs_needs_a_folder(logs, tmp_path):
+    from slearn.errors import InputError
+    from slearn.replay.annotate import write_annotated
+
+    result = replay_logs([logs["simple3"], logs["reversal"]], library=logs["library"],
+                         keep_outcomes=True)
+    with pytest.raises(InputError, match="folder"):
+        write_annotated(result, tmp_path / "x.mcap")
+    written = write_annotated(result, tmp_path)
+    assert [w.path for w in written] == [str(tmp_path / "simple3.annotated.mcap"),
+                                         str(tmp_path / "reversal.annotated.mcap")]
+
+
+def write_small_chunks(run, path):
+    """The pointer recorder's layout in chunks of 4 KiB, so a cut file keeps whole chunks."""
+    from slearn.recorders.mcap_episode import EpisodeWriter
+
+    with EpisodeWriter(path, chunk_size=4096) as out:
+        command = out.register_channel("/pointer/command", "Command", {"type": "object"})
+        position = out.register_channel("/pointer/position", "Position", {"type": "object"})
+        out.write(position, 0, {"position": int(run.positions[0])})
+        for i, (c, p) in enumerate(zip(run.commands.tolist(), run.positions[1:].tolist())):
+            out.write(command, i * 100_000_000, {"command": "LR"[c]})
+            out.write(position, i * 100_000_000 + 50_000_000, {"position": p})
+
+
+def test_truncated_log_scores_what_was_salvaged(logs, tmp_path):
+    whole, cut = tmp_path / "whole.mcap", tmp_path / "cut.mcap"
+    write_small_chunks(simulate(PointerConfig("simple", trials=2500, seed=3)), whole)
+    data = whole.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    result = replay_logs([cut], library=logs["library"])
+    assert result.truncated and "truncated" in result.warnings[0]
+    assert 0 < result.totals.events < 2500 and result.accuracy >= 0.99
+
+
+def test_a_changed_training_log_is_not_used_for_the_baselines(logs, tmp_path):
+    from slearn.serialize import read_episodes
+
+    copy = tmp_path / "train.mcap"
+    shutil.copy(logs["simple0"], copy)
+    library, vocabulary = PatternLibrary(), Vocabulary()
+    for _, episode, _ in read_episodes([copy], pointer_spec(), vocabulary):
+        library.learn(episode)
+    storage.save_library(tmp_path / "lib.parquet", library, vocabulary, spec=pointer_spec(),
+                         params={}, provenance={"inputs": [storage.file_record(copy)]})
+    record_pointer(PointerConfig("simple", trials=2500, seed=7), copy, overwrite=True)
+    result = replay_logs([logs["simple3"]], library=tmp_path / "lib.parquet")
+    assert result.baseline_fit == FIT_PREQUENTIAL
