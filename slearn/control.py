@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field, replace
@@ -23,10 +24,14 @@ from typing import Protocol
 
 import numpy as np
 
+from slearn import __version__
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
 from slearn.planner import Planner, PlannerSettings
 from slearn.qlearning import QLearner
+from slearn.recorders.mcap_episode import EpisodeWriter
+from slearn.recorders.record_pointer import (ANGLE_CHANNEL, ANGLE_SCHEMA, COMMAND_SCHEMA,
+                                             POSITION_SCHEMA, SENSE_DELAY_NS, TRIAL_NS)
 from slearn.recorders.pointer import (BIN_DEG, COMMAND_CHANNEL, COMMAND_NAMES, CONDITIONS,
                                       FULL_TURN_DEG, MAX_ERROR_DEG, N_BINS, POSITION_CHANNEL, R,
                                       PointerConfig, PointerRun, bin_of, pointer_vocabulary,
@@ -283,6 +288,8 @@ class QLearningResult:
 class Trace:
     """What the slearn pointer did, step by step (for recording)."""
 
+    start_label: int
+    start_angle_deg: float
     commands: list[int]
     labels: list[int]
     angles_deg: list[float]
@@ -452,7 +459,7 @@ def run_control(config: ControlConfig, library: PatternLibrary | None = None,
     goals = goal_sequence(config, env.label)
     before = len(library)
     agent = SlearnAgent(library, symbols, env.label, config.planner)
-    trace = Trace([], [], [], [], [])
+    trace = Trace(env.label, env.angle_deg, [], [], [], [], [])
     outcomes, blocks = _run_goals(agent, env, goals, config, trace)
     agent.close()
     q = _run_qlearning(config, goals) if config.qlearning else None
@@ -517,3 +524,54 @@ def _trained_goal_success(learner: QLearner, config: ControlConfig, goal: int,
         reached += outcome.reached
         total += 1
     return reached / total
+
+
+GOAL_CHANNEL = "/pointer/goal"
+GOAL_SCHEMA = {
+    "title": "slearn.pointer.Goal",
+    "description": "The position label the controller is steering the pointer to.",
+    "type": "object",
+    "properties": {"goal": {"type": "integer", "minimum": 1, "maximum": N_BINS}},
+    "required": ["goal"],
+}
+METADATA_NAME = "slearn.control"
+
+
+def write_control_mcap(result: ControlResult, path: str | os.PathLike, *,
+                       overwrite: bool = False) -> int:
+    """Write the slearn pointer's run as one MCAP episode, atomically; returns messages written.
+
+    Channels are those of :mod:`slearn.recorders.record_pointer` plus ``/pointer/goal``
+    (``{"goal": 17}`` each time a goal is set), with the same timing (step ``i`` issues its
+    command at ``i * 100 ms`` and reads the position 50 ms later).
+    """
+    trace = result.trace
+    with EpisodeWriter(path, overwrite=overwrite) as out:
+        out.add_metadata(METADATA_NAME, _control_metadata(result))
+        channels = [out.register_channel(topic, schema["title"], schema, {"role": role})
+                    for topic, schema, role in _RECORDED]
+        command, position, angle, goal = channels
+        out.write(position, 0, {"position": trace.start_label})
+        out.write(angle, 0, {"angle_deg": trace.start_angle_deg})
+        for step, label in zip(trace.goal_steps, trace.goal_labels):
+            out.write(goal, step * TRIAL_NS, {"goal": label})
+        for i, (cmd, label, deg) in enumerate(zip(trace.commands, trace.labels, trace.angles_deg)):
+            out.write(command, i * TRIAL_NS, {"command": COMMAND_NAMES[cmd]})
+            out.write(position, i * TRIAL_NS + SENSE_DELAY_NS, {"position": label})
+            out.write(angle, i * TRIAL_NS + SENSE_DELAY_NS, {"angle_deg": deg})
+    return 2 + len(trace.goal_steps) + 3 * len(trace.commands)
+
+
+_RECORDED = ((COMMAND_CHANNEL, COMMAND_SCHEMA, "action"),
+             (POSITION_CHANNEL, POSITION_SCHEMA, "observation"),
+             (ANGLE_CHANNEL, ANGLE_SCHEMA, "ground_truth"),
+             (GOAL_CHANNEL, GOAL_SCHEMA, "goal"))
+
+
+def _control_metadata(result: ControlResult) -> dict[str, str]:
+    config = result.config
+    return {"condition": config.condition, "seed": str(config.seed), "goals": str(config.n_goals),
+            "budget": str(config.budget), "switch_goal": str(config.switch_at),
+            "error_deg": repr(config.error_deg), "delay_prob": repr(config.delay_prob),
+            "library": result.library_source, "simulator": "slearn.control.PointerEnv",
+            "slearn_version": __version__}
