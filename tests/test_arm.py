@@ -80,3 +80,18 @@ def test_existing_file_is_refused(tmp_path):
     with pytest.raises(InputError, match="already exists"):
         record_arm(ArmConfig(trials=10), path)
     assert path.read_bytes() == b"x"
+
+
+def test_bench_arm_smoke():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_arm.py"
+    spec = importlib.util.spec_from_file_location("bench_arm", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    results = bench.run(trials=2000, seeds=1, max_length=5, layouts=["moved"])
+    assert [r["joints"] for r in results] == [1, 2, 3, 4]
+    assert results[0]["accuracy"][-1] == 1.0 and len(results[0]["accuracy"]) == 2
+    assert all(r["patterns"] <= 2000 + 4 for r in results)  # at most one new pattern a step
+    assert len(bench.render(results).splitlines()) == 2 + 4
