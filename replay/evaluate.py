@@ -390,6 +390,9 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     logs = [os.fspath(p) for p in logs]
     if not logs:
         raise InputError("no logs to replay: give at least one MCAP file")
+    for path in logs:
+        if not os.path.isfile(path):
+            raise InputError(f"{path}: no such log file")
     setup = _open_library(library, spec, max_length, logs) if library is not None else \
         _empty_library(spec, max_length, logs, progress)
     online = online or library is None
@@ -488,9 +491,11 @@ def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | N
     if not paths:
         return None, FIT_PREQUENTIAL
     baselines = Baselines(setup.library.max_length - 1)
-    for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, progress):
+    if progress:
+        sys.stderr.write(f"replay: counting the baselines on {len(paths)} training log(s)\n")
+    for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False):
         baselines.learn_tokens(setup.library.tokens.tokenize(episode))
-    setup.notes.append(f"baselines counted on {len(paths)} training log(s)")
+    setup.facts["baseline_logs"] = paths
     return baselines, FIT_TRAINING
 
 

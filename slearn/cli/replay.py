@@ -1,0 +1,134 @@
+"""``slearn replay``: how well a saved library predicts held-out logs, next to two baselines."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
+from slearn.errors import InputError
+from slearn.library import DEFAULT_MAX_LENGTH
+from slearn.predictor import SCORINGS
+
+_MCAP_MAGIC = b"\x89MCAP"
+
+
+def _is_mcap(path: str) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(5) == _MCAP_MAGIC
+    except OSError:
+        return path.endswith(".mcap")
+
+
+def _check_outputs(paths: list[str | None], force: bool) -> None:
+    for path in paths:
+        if path and Path(path).exists() and not Path(path).is_dir() and not force:
+            raise InputError(f"{path} already exists: pass --force to overwrite it")
+
+
+@click.command("replay")
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
+@click.option("--spec", "spec", type=click.Path(dir_okay=False),
+              help="Channel spec (TOML): start from an empty library (implies --online).")
+@click.option("--window", type=click.IntRange(min=1), help="Steps per learning-curve window.")
+@click.option("--top-k", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Ranked guesses that count for the top-k accuracy.")
+@click.option("--scoring", type=click.Choice(SCORINGS), help="Override the library's scoring rule.")
+@click.option("--max-length", type=click.IntRange(min=1), default=DEFAULT_MAX_LENGTH,
+              show_default=True, help="Pattern length of an empty library (--spec).")
+@click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
+              help="Training log for the baselines (repeat; default: the library's own inputs "
+                   "when still on disk).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/1).")
+@click.option("--plot", type=click.Path(dir_okay=False), help="Write the learning curves (PNG).")
+@click.option("--report", type=click.Path(dir_okay=False), help="Write a self-contained HTML report.")
+@click.option("--write-mcap", "write_mcap", type=click.Path(),
+              help="Write the log annotated with /slearn/prediction, /slearn/correct and "
+                   "/slearn/surprise (a folder for several logs).")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--fail-under", type=click.FloatRange(0, 100),
+              help="Exit 4 when the accuracy (percent) is below this.")
+@click.option("--quiet", is_flag=True, help="No progress on stderr.")
+@click.pass_context
+def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
+            window: int | None, top_k: int, scoring: str | None, max_length: int,
+            baseline_train: tuple[str, ...], as_json: bool, plot: str | None, report: str | None,
+            write_mcap: str | None, force: bool, fail_under: float | None, quiet: bool) -> None:
+    """Evaluate library LIB on held-out MCAP LOGS: slearn replay LIB LOGS...
+
+    Frozen by default: the library predicts every observation from the history and the
+    actions issued, without learning. With --spec and no LIB, replay starts from an empty
+    library and learns online. Exits 3 when a log was truncated (what was salvaged is
+    scored), 4 when the accuracy is below --fail-under.
+    """
+    from slearn.replay.evaluate import replay_logs
+
+    library, logs = _split(paths, spec)
+    _check_outputs([plot, report, write_mcap], force)
+    evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
+                             window=window, max_length=max_length, scoring=scoring,
+                             baseline_logs=baseline_train or None,
+                             keep_outcomes=write_mcap is not None, progress=not quiet)
+    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet)
+    _render(evaluation, outputs, as_json)
+    for warning in evaluation.warnings:
+        click.echo(f"slearn: warning: {warning}", err=True)
+    accuracy = evaluation.accuracy
+    if fail_under is not None and (math.isnan(accuracy) or 100 * accuracy < fail_under):
+        click.echo(f"slearn: accuracy {100 * accuracy:.2f} % is below --fail-under {fail_under:g} %",
+                   err=True)
+        ctx.exit(EXIT_BELOW_THRESHOLD)
+    if evaluation.truncated:
+        ctx.exit(EXIT_TRUNCATED)
+
+
+def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[str]]:
+    """``(library or None, logs)``: with --spec, a first path that is MCAP means no library."""
+    if _is_mcap(paths[0]):
+        if spec is None:
+            raise InputError(f"{paths[0]} is an MCAP log, not a library: give the library first "
+                             "(slearn replay LIB LOGS...), or --spec FILE to start from an empty one")
+        return None, list(paths)
+    if len(paths) < 2:
+        raise InputError("give a library and at least one log (slearn replay LIB LOGS...), "
+                         "or --spec FILE and logs to start from an empty library")
+    return paths[0], list(paths[1:])
+
+
+def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap: str | None,
+                   force: bool, quiet: bool) -> dict:
+    outputs: dict = {}
+    if plot:
+        from slearn.replay.plots import write_curves
+
+        write_curves(evaluation, plot)
+        outputs["plot"] = plot
+    if report:
+        from slearn.replay.report import write_html
+
+        write_html(evaluation, report)
+        outputs["report"] = report
+    if write_mcap:
+        from slearn.replay.annotate import write_annotated
+
+        written = write_annotated(evaluation, write_mcap, overwrite=force)
+        outputs["annotated"] = [w.to_dict() for w in written]
+    for kind, value in outputs.items():
+        if not quiet:
+            names = ", ".join(w["path"] for w in value) if kind == "annotated" else value
+            click.echo(f"slearn: wrote {kind} {names}", err=True)
+    return outputs
+
+
+def _render(evaluation, outputs: dict, as_json: bool) -> None:
+    if as_json:
+        click.echo(json.dumps({**evaluation.to_dict(), "outputs": outputs}, indent=2))
+    else:
+        from slearn.replay.report import format_table
+
+        click.echo(format_table(evaluation))

@@ -1,0 +1,153 @@
+"""``slearn replay``: table, --json, --plot, --report, --write-mcap, exit codes, errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED, main
+from slearn.library import PatternLibrary
+from slearn.recorders.pointer import PointerConfig
+from slearn.recorders.record_pointer import record_pointer
+from slearn.serialize import read_episodes
+from slearn.spec import pointer_spec
+from slearn.vocabulary import Vocabulary
+
+storage = pytest.importorskip("slearn.storage")
+
+POINTER_TOML = """mode = "message"
+[[channel]]
+topic = "/pointer/command"
+field = "command"
+role = "action"
+values = ["L", "R"]
+[[channel]]
+topic = "/pointer/position"
+field = "position"
+role = "observation"
+"""
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("replay_cli")
+    out = {"folder": folder}
+    for name, config in {"train": PointerConfig("simple", trials=3000, seed=0),
+                         "test": PointerConfig("simple", trials=1500, seed=3),
+                         "reversal": PointerConfig("reversal", trials=2000, seed=4, switch_trial=800)}.items():
+        out[name] = folder / f"{name}.mcap"
+        record_pointer(config, out[name])
+    library, vocabulary = PatternLibrary(), Vocabulary()
+    for _, episode, _ in read_episodes([out["train"]], pointer_spec(), vocabulary):
+        library.learn(episode)
+    out["library"] = folder / "library.parquet"
+    storage.save_library(out["library"], library, vocabulary, spec=pointer_spec(),
+                         params={"scoring": "adaptive"}, provenance={})
+    out["spec"] = folder / "pointer.toml"
+    out["spec"].write_text(POINTER_TOML)
+    return out
+
+
+def run(*args):
+    return CliRunner().invoke(main, ["replay", *map(str, args)])
+
+
+def test_table_on_stdout_progress_on_stderr(files):
+    result = run(files["library"], files["test"])
+    assert result.exit_code == 0, result.stderr
+    out = result.stdout
+    assert "frozen" in out and "library " in out and "frequency baseline" in out
+    assert "markov baseline" in out and "/pointer/position" in out and "test.mcap" in out
+    assert "100.00 %" in out
+    assert "replay: test.mcap" in result.stderr
+
+
+def test_json_is_the_only_thing_on_stdout(files):
+    result = run(files["library"], files["test"], files["reversal"], "--json", "--window", "100",
+                 "--top-k", "2")
+    assert result.exit_code == 0, result.stderr
+    doc = json.loads(result.stdout)
+    assert doc["schema"] == "slearn.replay/1" and doc["mode"] == "frozen"
+    assert doc["top_k"] == 2 and doc["window"] == 100
+    assert doc["totals"]["events"] == 3500
+    assert [e["events"] for e in doc["episodes"]] == [1500, 2000]
+    assert doc["episodes"][0]["accuracy"] >= 0.995
+    assert doc["baselines"]["fit"] == "prequential"  # provenance names no inputs
+    assert doc["outputs"] == {}
+
+
+def test_online_recovers_from_the_reversal_in_the_curve(files):
+    frozen = json.loads(run(files["library"], files["reversal"], "--json", "--window", "200").stdout)
+    online = json.loads(run(files["library"], files["reversal"], "--json", "--window", "200",
+                            "--online").stdout)
+    frozen_curve = [w["accuracy"] for w in frozen["episodes"][0]["curve"]]
+    online_curve = [w["accuracy"] for w in online["episodes"][0]["curve"]]
+    assert min(frozen_curve[:4]) >= 0.99 and max(frozen_curve[4:]) <= 0.05
+    assert online["mode"] == "online" and online_curve[4] < 0.95
+    assert min(online_curve[-3:]) >= 0.97 and online_curve[-1] >= 0.99
+
+
+def test_fail_under_exits_4_below_the_threshold(files):
+    assert run(files["library"], files["test"], "--fail-under", "99.5").exit_code == 0
+    below = run(files["library"], files["reversal"], "--fail-under", "90")
+    assert below.exit_code == EXIT_BELOW_THRESHOLD
+    assert "below --fail-under 90" in below.stderr
+
+
+def test_plot_report_and_annotated_mcap_are_written(files, tmp_path):
+    from mcap.reader import make_reader
+
+    plot, report, annotated = tmp_path / "c.png", tmp_path / "r.html", tmp_path / "a.mcap"
+    result = run(files["library"], files["reversal"], "--plot", plot, "--report", report,
+                 "--write-mcap", annotated, "--json", "--quiet")
+    assert result.exit_code == 0, result.stderr
+    assert result.stderr == ""
+    assert plot.read_bytes().startswith(b"\x89PNG")
+    assert "data:image/png;base64," in report.read_text()
+    with open(annotated, "rb") as f:
+        topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
+    assert topics.count("/slearn/prediction") == 2000 == topics.count("/slearn/surprise")
+    doc = json.loads(result.stdout)
+    assert doc["outputs"]["annotated"][0]["predictions"] == 2000
+    again = run(files["library"], files["reversal"], "--plot", plot)
+    assert again.exit_code == 1 and "--force" in again.stderr
+    assert run(files["library"], files["reversal"], "--plot", plot, "--force").exit_code == 0
+
+
+def test_spec_without_library_starts_empty_and_learns_online(files):
+    result = run("--spec", files["spec"], files["train"], files["test"], "--json", "--quiet")
+    assert result.exit_code == 0, result.stderr
+    doc = json.loads(result.stdout)
+    assert doc["mode"] == "online" and doc["library"] is None
+    assert doc["episodes"][1]["accuracy"] > doc["episodes"][0]["accuracy"]
+
+
+def test_truncated_log_exits_3_after_scoring_what_was_salvaged(files, tmp_path):
+    from tests.test_replay import write_small_chunks
+    from slearn.recorders.pointer import simulate
+
+    whole, cut = tmp_path / "whole.mcap", tmp_path / "cut.mcap"
+    write_small_chunks(simulate(PointerConfig("simple", trials=1500, seed=3)), whole)
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    result = run(files["library"], cut, "--json", "--quiet")
+    assert result.exit_code == EXIT_TRUNCATED
+    doc = json.loads(result.stdout)
+    assert doc["episodes"][0]["truncated"] and 0 < doc["totals"]["events"] < 1500
+    assert "slearn: warning:" in result.stderr and "truncated" in result.stderr
+
+
+@pytest.mark.parametrize("args, message", [
+    (["{test}"], "MCAP log, not a library"),
+    (["{library}"], "at least one log"),
+    (["{library}", "{test}", "--spec", "{spec}"], "carries the spec"),
+    (["{test}", "{test}"], "MCAP log, not a library"),
+    (["{spec}", "{test}"], "pointer.toml"),
+    (["{library}", "{folder}/missing.mcap"], "missing.mcap: no such log file"),
+])
+def test_bad_inputs_are_one_line_errors(files, args, message):
+    result = run(*[a.format(**files) for a in args])
+    assert result.exit_code == 1
+    assert result.stderr.startswith("slearn: error:") and message in result.stderr
+    assert result.stderr.count("\n") == 1 and result.stdout == ""
