@@ -5,7 +5,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -13,13 +12,9 @@ from slearn.cli import main
 from slearn.datasets.registry import (ARM_TRIALS, HELDOUT_SEEDS, POINTER_TRIALS, TRAIN_SEEDS,
                                       build_dataset, list_datasets)
 from slearn.errors import InputError
-from slearn.online import run_online
-from slearn.predictor import Predictor
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import CONDITIONS
-from slearn.serialize import read_episodes
 from slearn.spec import load_spec, pointer_spec
-from slearn.storage import load_library
 
 PR2_LOG = (Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")
@@ -55,23 +50,11 @@ def _learn(library_path, spec, logs):
     return json.loads(result.stdout)
 
 
-def _frozen_accuracy(library_path, logs):
-    """Replay through the saved library, frozen (the core path under ``slearn replay``)."""
-    loaded = load_library(library_path)
-    predictor = Predictor(loaded.library)
-    correct = []
-    for _, episode, _ in read_episodes(logs, loaded.spec, loaded.vocabulary):
-        correct.append(run_online(predictor, episode, learn=False).correct)
-    return float(np.concatenate(correct).mean())
-
-
-def _replay_cli(library_path, logs):
-    """``slearn replay --json`` when the replay command exists, else ``None``."""
-    if "replay" not in main.commands:
-        return None
+def _replay(library_path, logs):
+    """Frozen ``slearn replay --json`` of held-out logs; returns its totals."""
     result = _invoke("replay", library_path, *logs, "--json")
     assert result.exit_code == 0, result.output
-    return json.loads(result.stdout)
+    return json.loads(result.stdout)["totals"]
 
 
 def test_list_names_every_dataset():
@@ -104,11 +87,8 @@ def test_pointer_paper_learns_and_replays(pointer_paper, tmp_path):
     library = tmp_path / "simple.parquet"
     learned = _learn(library, folder / "spec.toml", sorted((folder / "train").glob("simple-*")))
     assert learned["episodes"] == len(TRAIN_SEEDS) and learned["patterns"] > 100
-    heldout = sorted((folder / "heldout").glob("simple-*"))
-    assert _frozen_accuracy(library, heldout) > 0.99
-    replayed = _replay_cli(library, heldout)
-    if replayed is not None:
-        assert "accuracy" in json.dumps(replayed)
+    totals = _replay(library, sorted((folder / "heldout").glob("simple-*")))
+    assert totals["events"] == POINTER_TRIALS and totals["accuracy"] > 0.99
 
 
 def test_pointer_arm_layout_learns_and_replays(pointer_arm, tmp_path):
@@ -122,10 +102,11 @@ def test_pointer_arm_layout_learns_and_replays(pointer_arm, tmp_path):
         assert load_spec(sub / "spec.toml").to_dict() == arm_spec(joints).to_dict()
         library = tmp_path / f"arm{joints}.parquet"
         _learn(library, sub / "spec.toml", sorted((sub / "train").iterdir()))
-        accuracy[joints] = _frozen_accuracy(library, sorted((sub / "heldout").iterdir()))
+        totals = _replay(library, sorted((sub / "heldout").iterdir()))
+        assert totals["events"] == ARM_TRIALS
+        accuracy[joints] = totals["accuracy"]
     assert accuracy[1] > 0.99
     assert accuracy[1] > accuracy[2] > accuracy[4] > 0.1  # the curse, measured in bench_arm
-    _replay_cli(tmp_path / "arm2.parquet", sorted((folder / "joints-2/heldout").iterdir()))
 
 
 def test_episodes_are_reproducible_bit_for_bit(tmp_path):
@@ -157,8 +138,7 @@ def test_pr2_sample_with_source_learns_and_replays(tmp_path):
     library = tmp_path / "pr2.parquet"
     learned = _learn(library, folder / "spec.toml", [episode.path])
     assert learned["steps"] > 100
-    assert _frozen_accuracy(library, [episode.path]) > 0.5
-    _replay_cli(library, [episode.path])
+    assert _replay(library, [episode.path])["accuracy"] > 0.5
 
 
 def test_pr2_source_that_does_not_fit_is_refused(tmp_path):
