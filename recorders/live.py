@@ -221,7 +221,7 @@ class LiveRecorder:
 
     def write_spec(self, path: str | os.PathLike) -> None:
         """Write :meth:`spec` as TOML to ``path``."""
-        Path(path).write_text(spec_toml(self.spec()), encoding="utf-8")
+        write_text(path, spec_toml(self.spec(), f"spec for the {self.prefix}-*.mcap episodes"))
 
     def _current(self) -> EventFile:
         if not self._open:
@@ -260,6 +260,14 @@ def spec_toml(spec: Spec, comment: str = "") -> str:
         lines += ["", "[[channel]]"]
         lines += [f"{key} = {_toml_value(value)}" for key, value in entry.items()]
     return "\n".join(lines) + "\n"
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write a text file; an unwritable path is an :class:`InputError`."""
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as err:
+        raise InputError(f"cannot write {path}: {err.strerror or err}") from err
 
 
 def _toml_value(value: Any) -> str:

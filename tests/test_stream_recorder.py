@@ -149,3 +149,24 @@ def test_cli_malformed_line_is_one_line_on_stderr(tmp_path):
     result = CliRunner().invoke(main, ["record", "stream", str(src), "-o", str(tmp_path / "x.mcap")])
     assert result.exit_code == 1 and result.stdout == ""
     assert result.stderr.strip() == f"slearn: error: {src}:2: channel 'a' has no value"
+
+
+def test_converted_stream_learns_and_replays_with_the_cli(tmp_path):
+    walk = [(i * 7) % 5 for i in range(300)]
+    lines = [" ".join(f"pos={p} cmd=R" for p in walk[k:k + 60]) + f" pos={walk[k + 60]}"
+             for k in range(0, 240, 60)]
+    src = _write(tmp_path, "walks.txt", "\n".join(lines) + "\n")
+    out = tmp_path / "mcap"
+    out.mkdir()
+    recorded = CliRunner().invoke(main, ["record", "stream", str(src), "-o", str(out), "--role",
+                                         "cmd=action", "--spec-out", str(tmp_path / "spec.toml")])
+    assert recorded.exit_code == 0, recorded.output
+    episodes = sorted(str(p) for p in out.iterdir())
+    assert len(episodes) == 4
+    library = str(tmp_path / "walks.parquet")
+    learned = CliRunner().invoke(main, ["learn", *episodes[:3], "--spec", str(tmp_path / "spec.toml"),
+                                        "-o", library, "-q"])
+    assert learned.exit_code == 0, learned.output
+    replayed = CliRunner().invoke(main, ["replay", library, episodes[3], "--json"])
+    assert replayed.exit_code == 0, replayed.output
+    assert json.loads(replayed.stdout)["totals"]["accuracy"] == 1.0

@@ -9,7 +9,7 @@ import click
 
 from slearn.errors import InputError
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
-from slearn.recorders.live import spec_toml
+from slearn.recorders.live import spec_toml, write_text
 from slearn.recorders.record_pointer import RecordSummary, record_pointer
 from slearn.recorders.stream import (DEFAULT_CHANNEL, FORMATS, TICK_NS, StreamSummary,
                                      convert_stream, stream_spec)
@@ -89,8 +89,7 @@ def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[st
                              roles=_parse_roles(roles), channel=channel,
                              tick_ns=round(tick_ms * 1e6), overwrite=force)
     if spec_out is not None:
-        spec_out.write_text(spec_toml(stream_spec(summary), f"spec for {source.name}"),
-                            encoding="utf-8")
+        write_text(spec_out, spec_toml(stream_spec(summary), f"spec for {source.name}"))
     click.echo(json.dumps(summary.to_dict()) if as_json else _stream_line(summary))
 
 
