@@ -34,6 +34,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Callable
 
+from slearn import __version__
 from slearn.errors import InputError, SlearnError
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.spec import Categorical, ChannelSpec, Spec
@@ -228,7 +229,8 @@ class LiveRecorder:
             raise SlearnError(f"LiveRecorder for {self.folder} is not open: use it in a with block")
         if self._file is None:
             path = self.folder / f"{self.prefix}-{len(self.paths):05d}.mcap"
-            metadata = {"slearn.live": {**self.metadata, "episode": str(len(self.paths))}}
+            metadata = {"slearn.live": {**self.metadata, "episode": str(len(self.paths)),
+                                        "slearn_version": __version__}}
             self._file = EventFile(path, overwrite=self.overwrite, keep_partial=True,
                                    metadata=metadata).__enter__()
             for name, role in self.roles.items():

@@ -7,8 +7,10 @@ Formats (``fmt="auto"`` picks one from the file name, then the content):
   the default channel. Blank lines and lines starting with ``#`` are skipped.
 - ``spmf``: SPMF sequence databases: items separated by spaces, ``-1`` ends an itemset
   (its items share one tick), ``-2`` ends a sequence. ``<T>`` before an itemset sets its
-  tick to ``T``. ``@ITEM=ID=NAME`` lines name items; other lines starting with ``@``,
-  ``#`` or ``%`` are skipped.
+  tick to ``T``; the end of a line also ends a sequence. ``@ITEM=ID=NAME`` lines name
+  items; other lines starting with ``@``, ``#`` or ``%`` are skipped. Auto-detection picks
+  ``spmf`` when the first line has a ``-2`` (or starts with ``@``): a token file whose
+  values include ``-2`` needs ``fmt="tokens"``.
 - ``csv``: a header row with ``channel``, ``value`` and ``time`` (seconds) or ``time_ns``
   (integer nanoseconds), optionally ``role`` and ``episode``.
 - ``jsonl``: one JSON object per line with the same keys.
@@ -263,38 +265,31 @@ def _token_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequenc
 
 def _spmf_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequence]:
     names: dict[str, str] = {}
-    sequence: Sequence | None = None
     for number, line in enumerate(_lines(path), 1):
         text = line.strip()
-        if text.startswith("@ITEM="):
-            _, item, name = text.split("=", 2) if text.count("=") >= 2 else (0, "", "")
+        if text.startswith("@ITEM=") and text.count("=") >= 2:
+            _, item, name = text.split("=", 2)
             names[item] = name
-            continue
-        if not text or text[0] in "#%@":
-            continue
-        tick = _last_tick(sequence, tick_ns) + 1
-        for token in text.split():
-            if token == "-2":
-                if sequence is not None:
-                    yield sequence
-                sequence, tick = None, 0
-                continue
-            sequence = sequence or Sequence(number)
-            if token == "-1":
-                tick += 1
-            elif _SPMF_TIME.match(token):
-                tick = int(token[1:-1])
-            else:
-                sequence.events.append(_token_event(names.get(token, token), tick, channel,
-                                                    tick_ns, number))
-    if sequence is not None and sequence.events:
-        raise InputError(f"{path}:{sequence.line}: the last sequence has no -2 at its end: "
-                         "end each SPMF sequence with -2 (or use --format tokens)")
+        elif text and text[0] not in "#%@":
+            yield from _spmf_line(text.split(), names, channel, tick_ns, number)
 
 
-def _last_tick(sequence: Sequence | None, tick_ns: int) -> int:
-    """The tick after which a sequence continues on its next line (-1 when none)."""
-    return sequence.events[-1].time_ns // tick_ns if sequence and sequence.events else -1
+def _spmf_line(tokens: list[str], names: dict[str, str], channel: str, tick_ns: int,
+               number: int) -> Iterator[Sequence]:
+    """The sequences of one SPMF line: ``-2`` or the end of the line ends a sequence."""
+    sequence, tick = Sequence(number), 0
+    for token in tokens:
+        if token == "-2":
+            yield sequence
+            sequence, tick = Sequence(number), 0
+        elif token == "-1":
+            tick += 1
+        elif _SPMF_TIME.match(token):
+            tick = int(token[1:-1])
+        else:
+            sequence.events.append(_token_event(names.get(token, token), tick, channel,
+                                                tick_ns, number))
+    yield sequence
 
 
 def _number(text: str) -> int | float | str:

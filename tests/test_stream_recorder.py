@@ -68,10 +68,10 @@ def test_spmf_itemsets_share_a_tick_and_item_names_apply(tmp_path):
     assert second == [[([], [5]), ([], [6])]]
 
 
-def test_spmf_without_final_separator_names_the_line(tmp_path):
-    src = _write(tmp_path, "db.txt", "1 -1 -2\n2 -1 3\n")
-    with pytest.raises(InputError, match=r"db.txt:2: .*-2"):
-        convert_stream(src, tmp_path / "x.mcap")
+def test_spmf_line_end_also_ends_a_sequence(tmp_path):
+    src = _write(tmp_path, "db.txt", "1 -1 -2\n2 -1 3\n-2\n")
+    summary = convert_stream(src, tmp_path / "x.mcap", fmt="spmf")
+    assert _steps(summary.paths, stream_spec(summary)) == [[([], [1])], [([], [2]), ([], [3])]]
 
 
 def test_csv_episodes_roles_and_numeric_values(tmp_path):
