@@ -152,25 +152,35 @@ def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
 
 
 def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecoder) -> list[tuple]:
+    """``(prediction, correct, surprise)`` JSON payloads per step; repeated parts are cached."""
     labels: dict[int, str] = {}
+    bodies: dict[tuple, bytes] = {}
+    surprises: dict[float, bytes] = {}
 
     def label(token: int) -> str:
         if token not in labels:
             labels[token] = decoder.label(token)
         return labels[token]
 
-    bits = outcome.surprise_bits()
+    bits = np.round(outcome.surprise_bits(), 4).tolist()
+    predicted, actual = outcome.predicted.tolist(), outcome.actual.tolist()
+    score, matched = np.round(outcome.score, 6).tolist(), outcome.matched_length.tolist()
+    top = outcome.top.tolist()
     out = []
     for s in steps.tolist():
-        predicted, actual = int(outcome.predicted[s]), int(outcome.actual[s])
-        right = predicted == actual
-        prediction = {"step": s + outcome.first_step, "predicted": label(predicted),
-                      "actual": label(actual), "correct": right, "abstained": predicted < 0,
-                      "score": round(float(outcome.score[s]), 6),
-                      "matched_steps": int(outcome.matched_length[s]),
-                      "top": [label(int(t)) for t in outcome.top[s] if t >= 0]}
-        surprise = {"bits": round(float(bits[s]), 4), "probability": round(float(2.0 ** -bits[s]), 6)}
-        out.append((_encode(prediction), _CORRECT[right], _encode(surprise)))
+        key = (predicted[s], actual[s], score[s], matched[s], tuple(top[s]))
+        body = bodies.get(key)
+        if body is None:
+            body = bodies[key] = _encode({
+                "predicted": label(key[0]), "actual": label(key[1]), "correct": key[0] == key[1],
+                "abstained": key[0] < 0, "score": key[2], "matched_steps": key[3],
+                "top": [label(t) for t in key[4] if t >= 0]})[1:]
+        surprise = surprises.get(bits[s])
+        if surprise is None:
+            surprise = surprises[bits[s]] = _encode({"bits": bits[s],
+                                                     "probability": round(2.0 ** -bits[s], 6)})
+        out.append((b'{"step":%d,' % (s + outcome.first_step) + body,
+                    _CORRECT[key[0] == key[1]], surprise))
     return out
 
 
