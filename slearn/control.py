@@ -63,8 +63,9 @@ class PointerEnv:
     def __init__(self, condition: str, seed: int = 0, *, error_deg: float = 5.0,
                  delay_prob: float = 0.5, start_bin: int | None = None) -> None:
         _check_pointer(condition, seed, error_deg, delay_prob)
-        start, permutation, dynamics = (np.random.default_rng(s)
-                                        for s in np.random.SeedSequence(seed).spawn(3))
+        # the simulator's streams (start, permutation, policy, dynamics); no policy here
+        start, permutation, _, dynamics = (np.random.default_rng(s)
+                                           for s in np.random.SeedSequence(seed).spawn(4))
         first = int(start.integers(N_BINS)) if start_bin is None else int(start_bin)
         self.condition = condition
         self.angle_deg = (first + 0.5) * BIN_DEG

@@ -9,6 +9,7 @@ learning online from whatever goal it is given. Pure: numpy only, seeded generat
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
@@ -43,10 +44,8 @@ class QLearner:
     def train(self, states: np.ndarray, actions: np.ndarray, next_states: np.ndarray, goal: int,
               sweeps: int = 30) -> None:
         """Replay logged transitions ``sweeps`` times with the reward of ``goal``."""
-        for _ in range(sweeps):
-            for s, a, s2 in zip(states.tolist(), actions.tolist(), next_states.tolist()):
-                if s != goal:
-                    self.update(s, a, s2, goal)
+        _replay(self.q, np.asarray(states, np.int64), np.asarray(actions, np.int64),
+                np.asarray(next_states, np.int64), goal, sweeps, self.alpha, self.discount)
 
     def act(self, state: int, rng: np.random.Generator) -> int:
         """Epsilon-greedy action; ties among the best go to a random one."""
@@ -55,3 +54,14 @@ class QLearner:
             return int(rng.integers(len(values)))
         best = np.flatnonzero(values >= values.max() - 1e-12)
         return int(best[rng.integers(len(best))])
+
+
+@numba.njit(cache=True)
+def _replay(q, states, actions, next_states, goal, sweeps, alpha, discount):
+    for _ in range(sweeps):
+        for i in range(len(states)):
+            s, a, s2 = states[i], actions[i], next_states[i]
+            if s == goal:
+                continue
+            target = 1.0 if s2 == goal else discount * q[s2].max()
+            q[s, a] += alpha * (target - q[s, a])
