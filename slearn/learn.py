@@ -19,6 +19,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from typing import Callable
 
 from slearn import __version__
 from slearn.errors import InputError, SpecError
@@ -159,8 +160,8 @@ def _check_scoring(scoring: str | None) -> None:
 def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
                 spec: Spec | None = None, resume: str | os.PathLike | None = None,
                 max_length: int | None = None, max_patterns: int | None = None,
-                scoring: str | None = None, overwrite: bool = False,
-                progress: bool = False) -> LearnResult:
+                scoring: str | None = None, overwrite: bool = False, progress: bool = False,
+                on_episode: Callable[[LearnResult, str], None] | None = None) -> LearnResult:
     """Learn each log as an episode and save the library to ``output`` (atomically).
 
     Args:
@@ -172,7 +173,9 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
         max_patterns: forgetting bound (default none).
         scoring: ``adaptive`` or ``literal``, stored for predictors.
         overwrite: replace an existing ``output``.
-        progress: show progress on stderr.
+        progress: show reading progress on stderr.
+        on_episode: called after each log is learned with the running result (episodes,
+            steps, events so far) and the log's path.
 
     A truncated log is learned as far as it could be read; it is listed in the result's
     ``truncated`` (and warned about), and the library is still saved.
@@ -191,7 +194,7 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
            else _new_job(paths, spec, max_length, max_patterns, scoring, progress))
     result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
-    _learn_episodes(job, paths, result, progress)
+    _learn_episodes(job, paths, result, progress, on_episode)
     saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
                          provenance=build_provenance(paths, job.provenance), overwrite=overwrite)
     result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
@@ -200,14 +203,18 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     return result
 
 
-def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool) -> None:
-    for _, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress):
+def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
+                    on_episode: Callable[[LearnResult, str], None] | None) -> None:
+    for path, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress):
         job.library.learn(episode)
         result.n_episodes += 1
         result.n_steps += len(episode)
         result.n_events += episode.n_events
+        result.n_patterns = len(job.library)
         if report.truncated:
             result.truncated.append(report)
+        if on_episode is not None:
+            on_episode(result, path)
 
 
 def build_provenance(paths: list[str], previous: dict | None = None) -> dict:

@@ -416,3 +416,15 @@ def test_token_table_find_all_matches_find():
     found = table.find_all(np.array([0, 1, 0, 1, 1], np.int8), np.array([1, 2, 3, 4, 5, 6, 3]),
                            np.array([0, 2, 2, 3, 6, 7]))
     assert found.tolist() == [0, 1, 2, 3, -1]
+
+
+def test_tables_split_over_many_row_groups_round_trip(tmp_path, monkeypatch):
+    import slearn.storage as storage
+
+    monkeypatch.setattr(storage, "ROW_GROUP_ROWS", 7)
+    library = learned(seed=5)
+    save(tmp_path / "lib.parquet", library)
+    assert pq.ParquetFile(tmp_path / "lib.parquet").metadata.num_row_groups > 20
+    loaded = load_library(tmp_path / "lib.parquet")
+    assert_same_library(library, loaded.library)
+    assert list(loaded.vocabulary.items()) == list(mixed_vocabulary().items())

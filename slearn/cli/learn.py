@@ -38,6 +38,13 @@ def _summary(result: LearnResult) -> str:
             + (f", {result.forgotten:,} forgotten" if result.forgotten else ""))
 
 
+def _progress(total: int):
+    def show(result: LearnResult, path: str) -> None:
+        click.echo(f"learned {result.n_episodes}/{total} logs: {result.n_steps:,} steps, "
+                   f"{result.n_patterns:,} patterns", err=True)
+    return show
+
+
 @click.command("learn")
 @click.argument("logs", nargs=-1, required=True)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
@@ -68,11 +75,13 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     Exits 3 when a log was truncated: what could be read is learned and saved.
     """
     spec = _spec(spec_path, channels, mode, tick_ms)
+    paths = expand_paths(list(logs))
+    progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
-        result = learn_files(expand_paths(list(logs)), output, spec=spec, resume=resume,
-                             max_length=max_length, max_patterns=max_patterns, scoring=scoring,
-                             overwrite=force, progress=not quiet and sys.stderr.isatty())
+        result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
+                             max_patterns=max_patterns, scoring=scoring, overwrite=force,
+                             progress=progress, on_episode=_progress(len(paths)) if progress else None)
     click.echo(json.dumps(result.to_dict()) if as_json else _summary(result))
     for report in result.truncated:
         click.echo(f"slearn: warning: {report.describe()}", err=True)
