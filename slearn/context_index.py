@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from slearn import hashtrie
-from slearn.hashtrie import child_or_add, path_tokens
+from slearn.hashtrie import child_or_add, pair_key, path_tokens, probe
 
 ContextIndex = namedtuple(
     "ContextIndex", "trie head best newest total outcome weight last_seen next size entry_keys entry_vals")
@@ -35,16 +35,12 @@ def new_index(capacity: int = 1024) -> ContextIndex:
     """An empty index with room for ``capacity`` nodes and entries."""
     trie = hashtrie.new_trie(capacity)
     nodes = len(trie.parent)
-    slots = _slots_for(capacity)
+    slots = hashtrie.table_size(capacity)
     return ContextIndex(trie, np.full(nodes, -1, np.int32), np.full(nodes, -1, np.int32),
                         np.full(nodes, -1, np.int32), np.zeros(nodes, np.int64),
                         np.zeros(capacity, np.int32), np.zeros(capacity, np.int64),
                         np.zeros(capacity, np.int64), np.full(capacity, -1, np.int32),
                         np.zeros(1, np.int64), np.full(slots, -1, np.int64), np.zeros(slots, np.int32))
-
-
-def _slots_for(capacity: int) -> int:
-    return 1 << int(2 * capacity - 1).bit_length()
 
 
 def free_room(index: ContextIndex) -> int:
@@ -66,7 +62,7 @@ def grow(index: ContextIndex, min_free: int) -> ContextIndex:
                             index.size, index.entry_keys, index.entry_vals)
     per_entry = [_extended(a, capacity, fill) for a, fill in
                  ((index.outcome, 0), (index.weight, 0), (index.last_seen, 0), (index.next, -1))]
-    slots = _slots_for(capacity)
+    slots = hashtrie.table_size(capacity)
     grown = ContextIndex(trie, *per_node, *per_entry, index.size, np.full(slots, -1, np.int64),
                          np.zeros(slots, np.int32))
     _rehash_entries(grown, int(trie.size[0]))
@@ -86,21 +82,13 @@ def nbytes(index: ContextIndex) -> int:
     return sum(a.nbytes for a in (*index.trie[:4], *index[1:10], *index[11:]))
 
 
-@numba.njit(cache=True, inline="always")
-def _slot(key, mask):
-    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
-
-
 @numba.njit(cache=True)
 def _rehash_entries(index, n_nodes):
-    mask = len(index.entry_keys) - 1
     for node in range(n_nodes):
         e = index.head[node]
         while e != -1:
-            key = (np.int64(node) << 32) | np.int64(index.outcome[e])
-            s = _slot(key, mask)
-            while index.entry_keys[s] != -1:
-                s = (s + 1) & mask
+            key = pair_key(node, index.outcome[e])
+            s = probe(index.entry_keys, key)
             index.entry_keys[s] = key
             index.entry_vals[s] = e
             e = index.next[e]
@@ -109,25 +97,18 @@ def _rehash_entries(index, n_nodes):
 @numba.njit(cache=True)
 def find_entry(index, node, outcome):
     """The entry of ``outcome`` after the context at ``node``, or -1."""
-    key = (np.int64(node) << 32) | np.int64(outcome)
-    mask = len(index.entry_keys) - 1
-    s = _slot(key, mask)
-    while True:
-        k = index.entry_keys[s]
-        if k == key:
-            return index.entry_vals[s]
-        if k == -1:
-            return -1
-        s = (s + 1) & mask
+    key = pair_key(node, outcome)
+    s = probe(index.entry_keys, key)
+    return index.entry_vals[s] if index.entry_keys[s] == key else -1
 
 
 @numba.njit(cache=True)
-def _new_entry(index, node, outcome):
-    key = (np.int64(node) << 32) | np.int64(outcome)
-    mask = len(index.entry_keys) - 1
-    s = _slot(key, mask)
-    while index.entry_keys[s] != -1:
-        s = (s + 1) & mask
+def _entry(index, node, outcome):
+    """The entry of ``outcome`` after ``node``, created (at the head of its list) if missing."""
+    key = pair_key(node, outcome)
+    s = probe(index.entry_keys, key)
+    if index.entry_keys[s] == key:
+        return index.entry_vals[s]
     e = index.size[0]
     index.entry_keys[s] = key
     index.entry_vals[s] = e
@@ -151,9 +132,7 @@ def ranks_above(index, a, b):
 @numba.njit(cache=True)
 def add_entry(index, node, outcome, delta, last_seen):
     """Add ``delta`` to the weight of ``outcome`` after the context at ``node``."""
-    e = find_entry(index, node, outcome)
-    if e == -1:
-        e = _new_entry(index, node, outcome)
+    e = _entry(index, node, outcome)
     index.weight[e] += delta
     if last_seen > index.last_seen[e]:
         index.last_seen[e] = last_seen

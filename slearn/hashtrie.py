@@ -25,7 +25,7 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 def new_trie(capacity: int = 1024) -> Trie:
     """An empty trie holding only the root, with room for ``capacity`` nodes."""
     capacity = max(int(capacity), 16)
-    slots = _table_size(capacity)
+    slots = table_size(capacity)
     trie = Trie(
         np.zeros(capacity, np.int32),
         np.full(capacity, -1, np.int32),
@@ -37,7 +37,7 @@ def new_trie(capacity: int = 1024) -> Trie:
     return trie
 
 
-def _table_size(capacity: int) -> int:
+def table_size(capacity: int) -> int:
     return 1 << int(2 * capacity - 1).bit_length()
 
 
@@ -63,7 +63,7 @@ def grow(trie: Trie, min_free: int) -> Trie:
 
 def rebuilt(parent: np.ndarray, token: np.ndarray, n: int) -> Trie:
     """A trie over the first ``n`` nodes of ``parent``/``token`` with a fresh hash table."""
-    slots = _table_size(len(parent))
+    slots = table_size(len(parent))
     trie = Trie(parent, token, np.full(slots, _EMPTY, np.int64), np.zeros(slots, np.int32),
                 np.array([n], np.int64))
     _index_all(trie.parent, trie.token, trie.keys, trie.vals, n)
@@ -71,18 +71,26 @@ def rebuilt(parent: np.ndarray, token: np.ndarray, n: int) -> Trie:
 
 
 @numba.njit(cache=True, inline="always")
-def _slot(key, mask):
-    return np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(32)) & mask
+def pair_key(high, low):
+    """The 64-bit key of a pair of non-negative 32-bit ids."""
+    return (np.int64(high) << 32) | np.int64(low)
+
+
+@numba.njit(cache=True, inline="always")
+def probe(keys, key):
+    """The slot holding ``key`` in an open-addressing table, or the empty slot it would take."""
+    mask = len(keys) - 1
+    s = np.int64((np.uint64(key) * _GOLDEN) >> np.uint64(32)) & mask
+    while keys[s] != key and keys[s] != -1:
+        s = (s + 1) & mask
+    return s
 
 
 @numba.njit(cache=True)
 def _index_all(parent, token, keys, vals, n):
-    mask = len(keys) - 1
     for node in range(1, n):
-        key = (np.int64(parent[node]) << 32) | np.int64(token[node])
-        s = _slot(key, mask)
-        while keys[s] != -1:
-            s = (s + 1) & mask
+        key = pair_key(parent[node], token[node])
+        s = probe(keys, key)
         keys[s] = key
         vals[s] = node
 
@@ -90,31 +98,18 @@ def _index_all(parent, token, keys, vals, n):
 @numba.njit(cache=True)
 def child(trie, node, tok):
     """The child of ``node`` along ``tok``, or -1."""
-    key = (np.int64(node) << 32) | np.int64(tok)
-    mask = len(trie.keys) - 1
-    s = _slot(key, mask)
-    while True:
-        k = trie.keys[s]
-        if k == key:
-            return trie.vals[s]
-        if k == -1:
-            return -1
-        s = (s + 1) & mask
+    key = pair_key(node, tok)
+    s = probe(trie.keys, key)
+    return trie.vals[s] if trie.keys[s] == key else -1
 
 
 @numba.njit(cache=True)
 def child_or_add(trie, node, tok):
     """The child of ``node`` along ``tok``, created when missing (capacity is the caller's)."""
-    key = (np.int64(node) << 32) | np.int64(tok)
-    mask = len(trie.keys) - 1
-    s = _slot(key, mask)
-    while True:
-        k = trie.keys[s]
-        if k == key:
-            return trie.vals[s]
-        if k == -1:
-            break
-        s = (s + 1) & mask
+    key = pair_key(node, tok)
+    s = probe(trie.keys, key)
+    if trie.keys[s] == key:
+        return trie.vals[s]
     new = trie.size[0]
     trie.parent[new] = node
     trie.token[new] = tok
