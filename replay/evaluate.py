@@ -181,7 +181,35 @@ class Evaluation:
         return self.predictions / self.elapsed_s if self.elapsed_s > 0 else math.nan
 
     def to_dict(self) -> dict:
-        """The ``slearn.replay/1`` JSON document (documented in docs/REPLAY.md)."""
+        """The ``slearn.replay/1`` JSON document.
+
+        Rates are in [0, 1] and ``null`` when undefined (no events); lifts are in
+        percentage points (library accuracy minus baseline accuracy). Keys::
+
+            schema        "slearn.replay/1"
+            mode          "frozen" | "online"
+            top_k, window ranked guesses counted; steps per learning-curve window
+            library       {path, format_version, patterns, max_length, max_patterns, clock}
+                          or null (empty start)
+            params, provenance, spec, logs, baseline_logs (when the baselines were trained)
+            totals        TALLY over all logs
+            baselines     {fit: "training" | "prequential", markov_max_order}
+            channels      [{channel, events, correct, abstained, accuracy,
+                            frequency_accuracy, markov_accuracy}]
+            episodes      [{name, steps, TALLY..., channels, truncated, read,
+                            curve: [{start_step, end_step, events, accuracy,
+                                     frequency_accuracy, markov_accuracy}]}]
+            confusions    [{predicted, actual, count}] most frequent first,
+                          "channel=value, ..." labels
+            speed         {predictions, evaluation_s, predictions_per_s, total_s}
+            notes, warnings  [str]
+
+        ``TALLY`` is ``events, correct, abstained, accuracy, abstention_rate,
+        accuracy_when_predicting, top_k_correct, top_k_accuracy, baselines: {frequency,
+        markov: {correct, abstained, accuracy, lift_points}}``. ``slearn replay --json``
+        adds ``outputs`` (``plot``, ``report``, ``annotated``: the files written).
+        New keys may appear within a version; renamed or removed keys bump it.
+        """
         return {
             "schema": SCHEMA,
             "mode": self.mode,
@@ -233,9 +261,9 @@ def iter_evaluation(library: PatternLibrary, episodes: Iterable[tuple[str, Episo
     for name, episode, report in episodes:
         started = time.perf_counter()
         outcome = _predict_episode(name, episode, predictor, baselines, online, baselines_learn)
-        if window is None:
+        if window is None and len(outcome):
             window = nice_window(len(outcome))
-        summary = _summarize(outcome, decoder, window, report)
+        summary = _summarize(outcome, decoder, window or 1, report)
         elapsed += time.perf_counter() - started
         totals += summary.tally
         predictions += len(outcome)
@@ -300,6 +328,10 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
     decoder = ChannelDecoder(library.tokens, vocabulary)
     result.confusions = [(decoder.label(p), decoder.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
+    rule = scoring if isinstance(scoring, str) else scoring.rule
+    if not online and rule == "adaptive":
+        result.notes.append("frozen: no pattern was learned, but the adaptive scoring still "
+                            "re-weighed its context orders from each outcome (slearn.online)")
     result.vocabulary, result.tokens = vocabulary, library.tokens
     return result
 

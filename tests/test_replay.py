@@ -257,7 +257,7 @@ def test_without_training_data_baselines_are_prequential_and_say_so():
     library, _ = trained(seeds=(0,), trials=2000)
     result = evaluate(library, held_out(pointer_episode(trials=2000, seed=3)), pointer_vocabulary())
     assert result.baseline_fit == FIT_PREQUENTIAL
-    assert "lower bound" in result.notes[-1]
+    assert any("lower bound" in note for note in result.notes)
     assert result.totals.frequency_abstained > 0  # they start empty
     assert result.totals.rate("frequency") > 0.9
 

@@ -151,3 +151,14 @@ def test_bad_inputs_are_one_line_errors(files, args, message):
     assert result.exit_code == 1
     assert result.stderr.startswith("slearn: error:") and message in result.stderr
     assert result.stderr.count("\n") == 1 and result.stdout == ""
+
+
+def test_a_log_with_nothing_salvaged_has_no_accuracy_and_misses_any_threshold(files, tmp_path):
+    stub = tmp_path / "stub.mcap"
+    stub.write_bytes(files["test"].read_bytes()[:300])
+    result = run(files["library"], stub, "--json", "--quiet")
+    assert result.exit_code == EXIT_TRUNCATED
+    assert json.loads(result.stdout)["totals"]["accuracy"] is None
+    gated = run(files["library"], stub, "--fail-under", "1", "--quiet")
+    assert gated.exit_code == EXIT_BELOW_THRESHOLD
+    assert "no observation event to predict" in gated.stderr

@@ -80,8 +80,9 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
         click.echo(f"slearn: warning: {warning}", err=True)
     accuracy = evaluation.accuracy
     if fail_under is not None and (math.isnan(accuracy) or 100 * accuracy < fail_under):
-        click.echo(f"slearn: accuracy {100 * accuracy:.2f} % is below --fail-under {fail_under:g} %",
-                   err=True)
+        shown = "undefined (no observation event to predict)" if math.isnan(accuracy) \
+            else f"{100 * accuracy:.2f} %"
+        click.echo(f"slearn: accuracy {shown} is below --fail-under {fail_under:g} %", err=True)
         ctx.exit(EXIT_BELOW_THRESHOLD)
     if evaluation.truncated:
         ctx.exit(EXIT_TRUNCATED)
