@@ -447,3 +447,16 @@ def test_a_changed_training_log_is_not_used_for_the_baselines(logs, tmp_path):
     record_pointer(PointerConfig("simple", trials=2500, seed=7), copy, overwrite=True)
     result = replay_logs([logs["simple3"]], library=tmp_path / "lib.parquet")
     assert result.baseline_fit == FIT_PREQUENTIAL
+
+
+def test_plot_draws_one_line_per_channel_for_one_log_and_per_log_for_several():
+    from slearn.replay.plots import _lines
+
+    vocabulary = two_channel_vocabulary()
+    library = PatternLibrary(max_length=2)
+    library.learn(two_channel_episode(vocabulary, 500, 0))
+    one = evaluate(library, held_out(two_channel_episode(vocabulary, 300, 1)), vocabulary)
+    assert [label for label, *_ in _lines(one)][:2] == ["a", "b"]
+    several = evaluate(library, held_out(two_channel_episode(vocabulary, 300, 1),
+                                         two_channel_episode(vocabulary, 300, 2)), vocabulary)
+    assert [label for label, *_ in _lines(several)] == ["episode0", "episode1"]
