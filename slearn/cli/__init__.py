@@ -45,13 +45,7 @@ def main() -> None:
 
 def _register() -> None:
     for name in _COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"slearn.cli.{name}")
-        except ModuleNotFoundError as err:
-            if err.name == f"slearn.cli.{name}":
-                continue  # not built yet
-            raise
-        main.add_command(module.command)
+        main.add_command(importlib.import_module(f"slearn.cli.{name}").command)
 
 
 _register()
