@@ -477,7 +477,7 @@ def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None, 
                          "max_patterns": lib.max_patterns, "clock": lib.clock},
              "params": _jsonable(loaded.params), "provenance": _jsonable(loaded.provenance)}
     return _Setup(lib, loaded.vocabulary, spec, _scoring(loaded.params), facts,
-                  _training_logs(loaded.provenance), [])
+                  _training_logs(loaded.provenance, os.path.dirname(os.fspath(path))), [])
 
 
 def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: list[str],
@@ -498,23 +498,28 @@ def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: l
     return _Setup(library, Vocabulary(), spec, Scoring(), facts, [], notes)
 
 
-def _training_logs(provenance: dict) -> list[str]:
-    """The library's input logs when all are still on disk, unchanged (size and sha256)."""
-    from slearn.storage import file_record
+def _training_logs(provenance: dict, library_dir: str) -> list[str]:
+    """The library's input logs when all are still on disk, unchanged (size and sha256).
 
+    Relative paths are tried from the working folder, then from the library's folder.
+    """
     inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
     if not inputs or not isinstance(inputs, list):
         return []
-    paths = []
-    for entry in inputs:
-        if not isinstance(entry, dict) or not os.path.isfile(str(entry.get("path", ""))):
-            return []
-        if os.path.getsize(entry["path"]) != entry.get("size_bytes"):
-            return []
-        if entry.get("sha256") and file_record(entry["path"])["sha256"] != entry["sha256"]:
-            return []
-        paths.append(entry["path"])
-    return paths
+    paths = [_unchanged(entry, library_dir) for entry in inputs]
+    return paths if all(paths) else []
+
+
+def _unchanged(entry: Any, library_dir: str) -> str | None:
+    from slearn.storage import file_record
+
+    if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
+        return None
+    for path in dict.fromkeys([entry["path"], os.path.join(library_dir, entry["path"])]):
+        if os.path.isfile(path) and os.path.getsize(path) == entry.get("size_bytes") and \
+                file_record(path)["sha256"] == entry.get("sha256"):
+            return path
+    return None
 
 
 def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | None,

@@ -460,3 +460,18 @@ def test_plot_draws_one_line_per_channel_for_one_log_and_per_log_for_several():
     several = evaluate(library, held_out(two_channel_episode(vocabulary, 300, 1),
                                          two_channel_episode(vocabulary, 300, 2)), vocabulary)
     assert [label for label, *_ in _lines(several)] == ["episode0", "episode1"]
+
+
+def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path, monkeypatch):
+    folder = logs["library"].parent
+    inputs = []
+    for s in range(3):
+        record = storage.file_record(logs[f"simple{s}"])
+        inputs.append({**record, "path": f"simple{s}.mcap"})
+    loaded = storage.load_library(logs["library"])
+    storage.save_library(folder / "relative.parquet", loaded.library, loaded.vocabulary,
+                         spec=loaded.spec, params={}, provenance={"inputs": inputs}, overwrite=True)
+    monkeypatch.chdir(tmp_path)
+    result = replay_logs([logs["simple3"]], library=folder / "relative.parquet")
+    assert result.baseline_fit == FIT_TRAINING
+    assert result.setup["baseline_logs"] == [str(folder / f"simple{s}.mcap") for s in range(3)]

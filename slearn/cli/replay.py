@@ -53,7 +53,7 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--fail-under", type=click.FloatRange(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
-@click.option("--quiet", is_flag=True, help="No progress on stderr.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
             window: int | None, top_k: int, scoring: str | None, max_length: int,
