@@ -29,7 +29,7 @@ import sys
 import time
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Iterator
 
 import numpy as np
@@ -164,6 +164,7 @@ class Evaluation:
     spec: Spec | None = None
     vocabulary: Vocabulary | None = None
     tokens: TokenTable | None = None
+    scoring: dict[str, Any] = field(default_factory=dict)
 
     @property
     def accuracy(self) -> float:
@@ -189,6 +190,7 @@ class Evaluation:
             schema        "slearn.replay/1"
             mode          "frozen" | "online"
             top_k, window ranked guesses counted; steps per learning-curve window
+            scoring       the predictor's {rule, alpha, buckets, prior}
             library       {path, format_version, patterns, max_length, max_patterns, clock}
                           or null (empty start)
             params, provenance, spec, logs, baseline_logs (when the baselines were trained)
@@ -215,6 +217,7 @@ class Evaluation:
             "mode": self.mode,
             "top_k": self.top_k,
             "window": self.window,
+            "scoring": self.scoring,
             **self.setup,
             "totals": self.totals.to_dict(),
             "baselines": {"fit": self.baseline_fit, "markov_max_order": self.baseline_order},
@@ -328,8 +331,9 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
     decoder = ChannelDecoder(library.tokens, vocabulary)
     result.confusions = [(decoder.label(p), decoder.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
-    rule = scoring if isinstance(scoring, str) else scoring.rule
-    if not online and rule == "adaptive":
+    scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
+    result.scoring = asdict(scoring)
+    if not online and scoring.rule == "adaptive":
         result.notes.append("frozen: no pattern was learned, but the adaptive scoring still "
                             "re-weighed its context orders from each outcome (slearn.online)")
     result.vocabulary, result.tokens = vocabulary, library.tokens

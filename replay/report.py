@@ -113,6 +113,7 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
 
 def _setup(evaluation: Evaluation) -> dict:
     return {"mode": evaluation.mode, "top_k": evaluation.top_k, "window": evaluation.window,
+            "scoring": evaluation.scoring,
             "baselines": {"fit": evaluation.baseline_fit, "markov_max_order": evaluation.baseline_order},
             **evaluation.setup}
 
