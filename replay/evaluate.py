@@ -316,10 +316,10 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
     """
     fit = baseline_fit or (FIT_TRAINING if baselines is not None else FIT_PREQUENTIAL)
     learn = online or fit == FIT_PREQUENTIAL
-    channels: list[str] = ChannelDecoder(library.tokens, vocabulary).channels
+    decoder = ChannelDecoder(library.tokens, vocabulary)
     result = Evaluation(ONLINE if online else FROZEN, top_k, window or 0, fit,
-                        library.max_length - 1, Tally(), ChannelCounts.zeros(channels), [], [], 0,
-                        0.0)
+                        library.max_length - 1, Tally(), ChannelCounts.zeros(decoder.channels), [],
+                        [], 0, 0.0)
     wrong: Counter = Counter()
     checkpoints = iter_evaluation(library, episodes, vocabulary, online=online, top_k=top_k,
                                   scoring=scoring, window=window, baselines=baselines,
@@ -328,7 +328,6 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
         _collect(result, point, wrong, keep_outcomes)
         if progress:
             _progress_line(point)
-    decoder = ChannelDecoder(library.tokens, vocabulary)
     result.confusions = [(decoder.label(p), decoder.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
     scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
@@ -344,6 +343,8 @@ def _collect(result: Evaluation, point: Checkpoint, wrong: Counter, keep_outcome
     o = point.outcome
     result.window = point.episode.curve.window
     result.totals = point.totals
+    if result.channels.channels != point.episode.channels.channels:  # declared while reading
+        result.channels = ChannelCounts.zeros(point.episode.channels.channels)
     result.channels += point.episode.channels
     result.episodes.append(point.episode)
     result.predictions, result.elapsed_s = point.predictions, point.elapsed_s

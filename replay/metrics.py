@@ -130,14 +130,23 @@ class ChannelDecoder:
     def __init__(self, tokens: TokenTable, vocabulary: Vocabulary) -> None:
         self.tokens = tokens
         self.vocabulary = vocabulary
-        self.channels = [c for c, role in vocabulary.roles.items() if role == OBSERVATION]
+        self.channels: list[str] = []
+        self._reset()
+
+    def _reset(self) -> None:
+        self.channels = [c for c, role in self.vocabulary.roles.items() if role == OBSERVATION]
         self._column = {c: i for i, c in enumerate(self.channels)}
         self._values: dict[tuple, int] = {}
         self._rows: list[list[int]] = []
         self._table = np.full((1, len(self.channels)), -1, np.int64)
 
     def table(self) -> np.ndarray:
-        """``(n_tokens + 1, n_channels)`` value ids, -1 = channel absent; the last row is 'no token'."""
+        """``(n_tokens + 1, n_channels)`` value ids, -1 = channel absent; the last row is 'no token'.
+
+        Channels declared since the last call (a vocabulary prepared late) are picked up.
+        """
+        if sum(role == OBSERVATION for role in self.vocabulary.roles.values()) != len(self.channels):
+            self._reset()
         n = len(self.tokens)
         if len(self._table) != n + 1:
             while len(self._rows) < n:
@@ -209,7 +218,10 @@ class ChannelCounts:
 
 def channel_hits(decoder: ChannelDecoder, predicted: np.ndarray, actual: np.ndarray,
                  frequency: np.ndarray, markov: np.ndarray) -> dict[str, np.ndarray]:
-    """``(n, n_channels)`` booleans: ``events`` (channel observed) and each predictor's hits."""
+    """``(n, n_channels)`` booleans: ``events`` (channel observed) and each predictor's hits.
+
+    Columns follow ``decoder.channels`` as of this call.
+    """
     truth = decoder.split(actual)
     events = truth >= 0
     hits = {"events": events, "abstained": events & (predicted < 0)[:, None]}

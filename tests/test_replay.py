@@ -354,6 +354,8 @@ def test_replay_logs_without_spec_needs_one_and_with_spec_alone_learns_online(lo
     assert result.accuracy >= 0.995 and result.baseline_fit == FIT_PREQUENTIAL
     empty = replay_logs([logs["simple0"], logs["simple3"]], spec=spec)
     assert empty.mode == "online" and empty.setup["library"] is None
+    assert [c["channel"] for c in empty.channels.to_list()] == ["/pointer/position"]  # declared late
+    assert empty.channels.events.tolist() == [5000]
     assert empty.episodes[0].tally.accuracy < empty.episodes[1].tally.accuracy
 
 
