@@ -477,3 +477,25 @@ def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path,
     result = replay_logs([logs["simple3"]], library=folder / "relative.parquet")
     assert result.baseline_fit == FIT_TRAINING
     assert result.setup["baseline_logs"] == [str(folder / f"simple{s}.mcap") for s in range(3)]
+
+
+@pytest.mark.parametrize("mode, tick_ns", [("message", None), ("change", None), ("tick", 100_000_000),
+                                           ("tick", 30_000_000)])
+def test_step_times_match_the_steps_of_every_mode(tmp_path, mode, tick_ns):
+    from dataclasses import replace
+
+    from slearn.replay.annotate import step_times
+    from slearn.serialize import read_episodes
+
+    path = tmp_path / "p.mcap"
+    record_pointer(PointerConfig("simple", trials=200, seed=1), path)
+    spec = replace(pointer_spec(), mode=mode, tick_ns=tick_ns)
+    vocabulary = Vocabulary()
+    [(_, episode, _)] = list(read_episodes([path], spec, vocabulary))
+    times = step_times(str(path), spec, vocabulary)
+    assert len(times) == len(episode)
+    assert times[0] == 0 and (np.diff(times) > 0).all()
+    if mode != "tick":
+        assert times[1] == 50_000_000 and times[-1] == 199 * 100_000_000 + 50_000_000
+    else:
+        assert times[1] == tick_ns
