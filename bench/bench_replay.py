@@ -56,6 +56,27 @@ def bench_core(trials: int, train_trials: int, condition: str, online: bool) -> 
             "accuracy": round(best.accuracy, 4)}
 
 
+def bench_predictor(trials: int, train_trials: int, online: bool) -> dict:
+    """Predictions/s of :func:`slearn.online.run_online` alone (the floor of the core; best of 3)."""
+    from slearn.online import run_online
+    from slearn.predictor import Predictor
+
+    episode = simulate(PointerConfig("simple", trials=trials, seed=3)).to_episode()
+    best = None
+    for _ in range(3):
+        library, _ = _train(train_trials)
+        predictor = Predictor(library)
+        started = time.perf_counter()
+        result = run_online(predictor, episode, learn=online)
+        seconds = time.perf_counter() - started
+        best = (seconds, result) if best is None or seconds < best[0] else best
+    seconds, result = best
+    return {"what": f"run_online alone simple {'online' if online else 'frozen'}",
+            "predictions": len(result.actual), "seconds": round(seconds, 4),
+            "predictions_per_s": round(len(result.actual) / seconds),
+            "accuracy": round(float(result.correct.mean()), 4)}
+
+
 def bench_command(trials: int, train_trials: int, folder: Path, annotate: bool) -> dict:
     """Predictions/s of the whole ``slearn replay`` command on a recorded log (second run)."""
     from slearn.cli import main
@@ -100,7 +121,9 @@ def main() -> None:
     parser.add_argument("--train-trials", type=int, default=10_000, help="trials per training seed")
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
-    rows = [bench_core(args.trials, args.train_trials, "simple", False),
+    rows = [bench_predictor(args.trials, args.train_trials, False),
+            bench_predictor(args.trials, args.train_trials, True),
+            bench_core(args.trials, args.train_trials, "simple", False),
             bench_core(args.trials, args.train_trials, "simple", True),
             bench_core(args.trials, args.train_trials, "error", False),
             bench_core(args.trials, args.train_trials, "reversal", True)]
@@ -110,9 +133,9 @@ def main() -> None:
     if args.json:
         print(json.dumps(rows, indent=2))
         return
-    print(f"{'what':<28} {'predictions':>12} {'seconds':>9} {'predictions/s':>14} {'accuracy':>9}")
+    print(f"{'what':<34} {'predictions':>12} {'seconds':>9} {'predictions/s':>14} {'accuracy':>9}")
     for r in rows:
-        print(f"{r['what']:<28} {r['predictions']:>12,} {r['seconds']:>9.3f} "
+        print(f"{r['what']:<34} {r['predictions']:>12,} {r['seconds']:>9.3f} "
               f"{r['predictions_per_s']:>14,} {r['accuracy']:>9.4f}")
     sys.stdout.flush()
 
