@@ -23,6 +23,7 @@ import copy
 import json
 import os
 from array import array
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -88,20 +89,27 @@ class AnnotateSummary:
                 "predictions": self.predictions}
 
 
-def annotated_paths(evaluation: Evaluation, out: str | os.PathLike) -> list[Path]:
-    """Output file per replayed log: ``out`` itself for one log, else ``out/<log>.annotated.mcap``.
+def annotated_paths(logs: list[str], out: str | os.PathLike) -> list[Path]:
+    """Output file per log: ``out`` itself for one log, else ``out/<log>.annotated.mcap``.
+
+    Logs of the same name get ``-2``, ``-3``, ... Call it before replaying to fail early.
 
     Raises:
         InputError: several logs and ``out`` is not an existing folder.
     """
     out = Path(out)
-    names = [Path(e.name) for e in evaluation.episodes]
-    if len(names) == 1 and not out.is_dir():
+    if len(logs) == 1 and not out.is_dir():
         return [out]
     if not out.is_dir():
-        raise InputError(f"--write-mcap {out}: {len(names)} logs were replayed: give an existing "
+        raise InputError(f"--write-mcap {out}: {len(logs)} logs are replayed: give an existing "
                          "folder to write one annotated file per log into")
-    return [out / f"{n.stem}.annotated.mcap" for n in names]
+    paths, seen = [], Counter()
+    for log in logs:
+        stem = Path(log).stem
+        seen[stem] += 1
+        suffix = f"-{seen[stem]}" if seen[stem] > 1 else ""
+        paths.append(out / f"{stem}{suffix}.annotated.mcap")
+    return paths
 
 
 def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *,
@@ -115,7 +123,7 @@ def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *,
     """
     if len(evaluation.outcomes) != len(evaluation.episodes) or evaluation.spec is None:
         raise SlearnError("annotated logs need a replay of logs on disk kept with keep_outcomes=True")
-    targets = annotated_paths(evaluation, out)
+    targets = annotated_paths([e.name for e in evaluation.episodes], out)
     decoder = ChannelDecoder(evaluation.tokens, evaluation.vocabulary)
     return [_annotate_one(evaluation, outcome, target, decoder, overwrite)
             for outcome, target in zip(evaluation.outcomes, targets)]

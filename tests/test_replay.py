@@ -404,13 +404,14 @@ def test_annotating_several_logs_needs_a_folder(logs, tmp_path):
     from slearn.errors import InputError
     from slearn.replay.annotate import write_annotated
 
-    result = replay_logs([logs["simple3"], logs["reversal"]], library=logs["library"],
-                         keep_outcomes=True)
+    result = replay_logs([logs["simple3"], logs["reversal"], logs["simple3"]],
+                         library=logs["library"], keep_outcomes=True)
     with pytest.raises(InputError, match="folder"):
         write_annotated(result, tmp_path / "x.mcap")
     written = write_annotated(result, tmp_path)
     assert [w.path for w in written] == [str(tmp_path / "simple3.annotated.mcap"),
-                                         str(tmp_path / "reversal.annotated.mcap")]
+                                         str(tmp_path / "reversal.annotated.mcap"),
+                                         str(tmp_path / "simple3-2.annotated.mcap")]
 
 
 def write_small_chunks(run, path):

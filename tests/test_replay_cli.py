@@ -145,6 +145,7 @@ def test_truncated_log_exits_3_after_scoring_what_was_salvaged(files, tmp_path):
     (["{test}", "{test}"], "MCAP log, not a library"),
     (["{spec}", "{test}"], "pointer.toml"),
     (["{library}", "{folder}/missing.mcap"], "missing.mcap: no such log file"),
+    (["{library}", "{test}", "{test}", "--write-mcap", "{folder}/x.mcap"], "existing folder"),
 ])
 def test_bad_inputs_are_one_line_errors(files, args, message):
     result = run(*[a.format(**files) for a in args])

@@ -70,6 +70,10 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
 
     library, logs = _split(paths, spec)
     _check_outputs([plot, report, write_mcap], force)
+    if write_mcap:
+        from slearn.replay.annotate import annotated_paths
+
+        _check_outputs(annotated_paths(logs, write_mcap), force)
     evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
                              window=window, max_length=max_length, scoring=scoring,
                              baseline_logs=baseline_train or None,
