@@ -200,7 +200,8 @@ class Evaluation:
                             frequency_accuracy, markov_accuracy}]
             episodes      [{name, steps, TALLY..., channels, truncated, read,
                             curve: [{start_step, end_step, events, accuracy,
-                                     frequency_accuracy, markov_accuracy}]}]
+                                     frequency_accuracy, markov_accuracy,
+                                     channel_accuracy: [per channel, in "channels" order]}]}]
             confusions    [{predicted, actual, count}] most frequent first,
                           "channel=value, ..." labels
             speed         {predictions, evaluation_s, predictions_per_s, total_s}

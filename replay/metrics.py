@@ -265,11 +265,13 @@ class Curve:
             return self.channel_correct / np.where(self.channel_events > 0, self.channel_events, np.nan)
 
     def to_list(self) -> list[dict]:
-        """One dict per window, rates in [0, 1] or ``None``."""
+        """One dict per window, rates in [0, 1] or ``None``; ``channel_accuracy`` per channel."""
         acc, freq, markov = self.accuracy(), self.accuracy("frequency"), self.accuracy("markov")
+        by_channel = self.channel_accuracy()
         return [{"start_step": int(s), "end_step": int(s) + self.window, "events": int(e),
-                 "accuracy": _num(a), "frequency_accuracy": _num(f), "markov_accuracy": _num(m)}
-                for s, e, a, f, m in zip(self.start, self.events, acc, freq, markov)]
+                 "accuracy": _num(a), "frequency_accuracy": _num(f), "markov_accuracy": _num(m),
+                 "channel_accuracy": [_num(x) for x in c]}
+                for s, e, a, f, m, c in zip(self.start, self.events, acc, freq, markov, by_channel)]
 
 
 def learning_curve(scores: StepScores, hits: dict[str, np.ndarray], window: int) -> Curve:

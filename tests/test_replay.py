@@ -283,6 +283,8 @@ def test_json_document_is_versioned_and_strict_json():
     lift = 100 * (totals["accuracy"] - totals["baselines"]["markov"]["accuracy"])
     assert totals["baselines"]["markov"]["lift_points"] == pytest.approx(lift, abs=1e-3)
     assert [len(e["curve"]) for e in doc["episodes"]] == [10, 4]
+    window = doc["episodes"][0]["curve"][0]
+    assert window["channel_accuracy"] == [window["accuracy"]]  # one channel
     assert doc["confusions"][0]["count"] >= doc["confusions"][-1]["count"]
     assert doc["confusions"][0]["predicted"].startswith("/pointer/position=")
 
