@@ -31,6 +31,7 @@ pure (no I/O); its search runs in compiled kernels over the index's arrays.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
@@ -136,6 +137,7 @@ class Planner:
         self._states = hashtrie.new_trie(self.settings.max_states * width + 2)
         self._node_state = np.full(len(self._states.parent), _NO_STATE, np.int32)
         self._goal_cache: tuple[frozenset, int, np.ndarray] | None = None
+        self._graph: _Graph | None = None
 
     @property
     def actions(self) -> list[tuple[int, ...]]:
@@ -166,17 +168,31 @@ class Planner:
             return self._blind(actions, action_tokens)
         s = self.settings
         index = self.library.context_index()
-        self._reset_states()
-        graph = _build(index, self._states, self._node_state, start, action_tokens,
-                       self._goal_mask(goals), s.order, s.prior, s.novelty, s.max_states, s.horizon)
-        q, reach = _values(*graph[:6], len(action_tokens), s.horizon, s.discount, s.curiosity)
+        graph = self._search_graph(index, start, action_tokens, self._goal_mask(goals))
+        q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity)
         return self._plan_from(graph, q, reach, actions, action_tokens, index, start)
+
+    def _search_graph(self, index, start, action_tokens, goal_mask) -> _Graph:
+        s = self.settings
+        while True:
+            graph = self._graph_for(len(action_tokens))
+            self._reset_states()
+            if _build(index, self._states, self._node_state, graph, start, action_tokens, goal_mask,
+                      s.order, s.prior, s.novelty, s.horizon):
+                return graph
+            self._graph = _new_graph(s.max_states, 2 * s.order + 1, len(action_tokens), 2 * len(graph.nxt))
+
+    def _graph_for(self, n_actions: int) -> _Graph:
+        s = self.settings
+        if self._graph is None or len(self._graph.offsets) != s.max_states * n_actions + 1:
+            self._graph = _new_graph(s.max_states, 2 * s.order + 1, n_actions, 16 * 1024)
+        return self._graph
 
     def _plan_from(self, graph, q, reach, actions, action_tokens, index, start) -> Plan:
         best = _best_action(q[: len(actions)], reach[: len(actions)])
         if reach[best] < self.settings.min_probability:
             return self._curious(actions, action_tokens, index, start, float(q[best]))
-        steps, outcomes = _path(*graph, q, reach, len(actions), self.settings.horizon)
+        steps, outcomes = _path(graph, q, reach, len(actions), self.settings.horizon)
         table = self.library.tokens
         return Plan(tuple(actions[j] for j in steps), tuple(table.symbols(int(o)) for o in outcomes),
                     float(reach[best]), float(q[best]))
@@ -285,96 +301,101 @@ def distribution(index, tokens, obs_pos, action, levels, prior, novelty, cand, o
     return k, unknown
 
 
+_Graph = namedtuple("_Graph", "tok length depth goal offsets unknown nxt prob size")
+"""The searched states and transitions. Per state: its tokens ``tok[s, :length[s]]``, its
+``depth`` from the start and whether it is a ``goal``. Per (state, action) ``s * A + j``:
+the ``unknown`` probability and the transitions ``offsets[sa]:offsets[sa + 1]`` into
+``nxt``/``prob``. ``size`` int64[2]: states and transitions in use."""
+
+
+def _new_graph(max_states: int, width: int, n_actions: int, transitions: int) -> _Graph:
+    return _Graph(np.full((max_states, width), -1, np.int32), np.zeros(max_states, np.int32),
+                  np.zeros(max_states, np.int32), np.zeros(max_states, np.bool_),
+                  np.zeros(max_states * n_actions + 1, np.int64), np.zeros(max_states * n_actions),
+                  np.zeros(transitions, np.int32), np.zeros(transitions), np.zeros(2, np.int64))
+
+
 @numba.njit(cache=True)
-def _state_id(states, node_state, tokens, length, n_states, max_states):
-    """The id of the state ``tokens[:length]``, registering it as ``n_states`` if new."""
+def _state_id(states, node_state, tokens, length, graph):
+    """The id of the state ``tokens[:length]``, registered if new; -1 when out of room."""
+    n = graph.size[0]
     node = 0
     for i in range(length):
         found = child(states, node, tokens[i])
         if found < 0:
-            if n_states >= max_states:
+            if n >= len(graph.length):
                 return -1
             found = child_or_add(states, node, tokens[i])
         node = found
-    if node_state[node] == -1 and n_states < max_states:
-        node_state[node] = n_states
+    if node_state[node] == -1 and n < len(graph.length):
+        node_state[node] = n
+        graph.tok[n, :length] = tokens[:length]
+        graph.tok[n, length:] = -1
+        graph.length[n] = length
+        graph.size[0] = n + 1
     return node_state[node]
 
 
 @numba.njit(cache=True)
-def _grown(array, size):
-    if size < len(array):
-        return array
-    out = np.empty(2 * len(array), array.dtype)
-    out[: len(array)] = array
-    return out
+def _build(index, states, node_state, graph, start, actions, goal_mask, order, prior, novelty, horizon):
+    """Expand every state reachable within ``horizon`` steps from ``start`` (breadth first).
+
+    Returns False when the transition arrays ran out of room (grow them and build again).
+    """
+    n_act = len(actions)
+    n_tok = len(goal_mask)
+    scratch = (np.zeros(order + 1, np.int32), np.zeros(n_tok, np.int32), np.zeros(n_tok), np.zeros(n_tok),
+               np.zeros(2 * order + 3, np.int32))
+    graph.size[:] = 0
+    graph.offsets[0] = 0
+    _state_id(states, node_state, start, len(start), graph)
+    graph.depth[0] = 0
+    graph.goal[0] = False
+    s = 0
+    while s < graph.size[0]:
+        for j in range(n_act):
+            graph.unknown[s * n_act + j] = 0.0
+            if not graph.goal[s] and graph.depth[s] < horizon:
+                if not _expand(index, states, node_state, graph, s, s * n_act + j, actions[j],
+                               goal_mask, order, prior, novelty, scratch):
+                    return False
+            graph.offsets[s * n_act + j + 1] = graph.size[1]
+        s += 1
+    return True
 
 
 @numba.njit(cache=True)
-def _build(index, states, node_state, start, actions, goal_mask, order, prior, novelty,
-           max_states, horizon):
-    """The reachable state graph: transitions per (state, action) with their probabilities.
+def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty, scratch):
+    """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
 
-    Returns ``(n_states, offsets, next, prob, unknown, goal, last_obs)``; the transitions
-    of ``(s, j)`` are ``offsets[s * A + j]:offsets[s * A + j + 1]``.
+    Returns False when the transition arrays are out of room.
     """
-    width = 2 * order + 1
-    n_act = len(actions)
-    tok = np.full((max_states, width), -1, np.int32)
-    length = np.zeros(max_states, np.int32)
-    depth = np.zeros(max_states, np.int32)
-    goal = np.zeros(max_states, np.bool_)
-    offsets = np.zeros(max_states * n_act + 1, np.int64)
-    unknown = np.zeros(max_states * n_act)
-    nxt = np.zeros(256, np.int32)
-    prob = np.zeros(256)
-    cand = np.zeros(order + 1, np.int32)
-    n_tok = len(goal_mask)
-    outcomes = np.zeros(n_tok, np.int32)
-    probs = np.zeros(n_tok)
-    work = np.zeros(n_tok)
-    buf = np.zeros(width + 2, np.int32)
-    tok[0, : len(start)] = start
-    length[0] = len(start)
-    _state_id(states, node_state, start, len(start), 0, max_states)
-    n, m, s = 1, 0, 0
-    while s < n:
-        expand = not goal[s] and depth[s] < horizon
-        for j in range(n_act):
-            offsets[s * n_act + j + 1] = m
-            if not expand:
-                continue
-            levels = min(order, (length[s] - 1) // 2) + 1
-            k, unknown[s * n_act + j] = distribution(index, tok[s], length[s] - 1, actions[j], levels,
-                                                     prior, novelty, cand, outcomes, probs, work)
-            buf[: length[s]] = tok[s, : length[s]]
-            buf[length[s]] = actions[j]
-            keep = min(length[s] + 2, width)
-            first = length[s] + 2 - keep
-            for i in range(k):
-                if probs[i] <= 0.0:
-                    continue
-                buf[length[s] + 1] = outcomes[i]
-                t = _state_id(states, node_state, buf[first:], keep, n, max_states)
-                if t < 0:
-                    continue  # out of room: the mass is lost
-                if t == n:
-                    tok[n, :keep] = buf[first: first + keep]
-                    length[n] = keep
-                    depth[n] = depth[s] + 1
-                    goal[n] = goal_mask[outcomes[i]]
-                    n += 1
-                nxt = _grown(nxt, m)
-                prob = _grown(prob, m)
-                nxt[m] = t
-                prob[m] = probs[i]
-                m += 1
-            offsets[s * n_act + j + 1] = m
-        s += 1
-    last_obs = np.empty(n, np.int32)
-    for i in range(n):
-        last_obs[i] = tok[i, length[i] - 1]
-    return n, offsets, nxt, prob, unknown, goal, last_obs
+    cand, outcomes, probs, work, buf = scratch
+    length = graph.length[s]
+    levels = min(order, (length - 1) // 2) + 1
+    k, graph.unknown[sa] = distribution(index, graph.tok[s], length - 1, action, levels,
+                                                   prior, novelty, cand, outcomes, probs, work)
+    buf[:length] = graph.tok[s, :length]
+    buf[length] = action
+    keep = min(length + 2, 2 * order + 1)
+    first = length + 2 - keep
+    for i in range(k):
+        if probs[i] <= 0.0:
+            continue
+        if graph.size[1] >= len(graph.nxt):
+            return False
+        buf[length + 1] = outcomes[i]
+        fresh = graph.size[0]
+        t = _state_id(states, node_state, buf[first:], keep, graph)
+        if t < 0:
+            continue  # out of states: the mass is lost
+        if t == fresh:
+            graph.depth[t] = graph.depth[s] + 1
+            graph.goal[t] = goal_mask[outcomes[i]]
+        graph.nxt[graph.size[1]] = t
+        graph.prob[graph.size[1]] = probs[i]
+        graph.size[1] += 1
+    return True
 
 
 @numba.njit(cache=True)
@@ -387,8 +408,10 @@ def _q(offsets, nxt, prob, unknown, value, reach, sa, discount, curiosity):
 
 
 @numba.njit(cache=True)
-def _values(n, offsets, nxt, prob, unknown, goal, n_act, horizon, discount, curiosity):
+def _values(graph, n_act, horizon, discount, curiosity):
     """Value iteration; returns ``(q, reach)`` per (state, action) of the final sweep."""
+    n, goal, offsets, nxt, prob, unknown = (graph.size[0], graph.goal, graph.offsets, graph.nxt,
+                                            graph.prob, graph.unknown)
     value = np.where(goal[:n], 1.0, 0.0)
     reach = value.copy()
     q = np.zeros(n * n_act)
@@ -411,8 +434,10 @@ def _values(n, offsets, nxt, prob, unknown, goal, n_act, horizon, discount, curi
 
 
 @numba.njit(cache=True)
-def _path(n, offsets, nxt, prob, unknown, goal, last_obs, q, r, n_act, horizon):
+def _path(graph, q, r, n_act, horizon):
     """The greedy policy's most likely path from state 0: action indices and outcomes."""
+    n, goal, offsets, nxt, prob, unknown = (graph.size[0], graph.goal, graph.offsets, graph.nxt,
+                                            graph.prob, graph.unknown)
     steps = np.zeros(horizon, np.int32)
     outcomes = np.zeros(horizon, np.int32)
     seen = np.zeros(n, np.bool_)
@@ -430,7 +455,7 @@ def _path(n, offsets, nxt, prob, unknown, goal, last_obs, q, r, n_act, horizon):
             if prob[e] > top_p:
                 top, top_p = nxt[e], prob[e]
         steps[length] = best
-        outcomes[length] = last_obs[top] if top >= 0 else -1
+        outcomes[length] = graph.tok[top, graph.length[top] - 1] if top >= 0 else -1
         length += 1
         if top < 0:
             break

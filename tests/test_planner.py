@@ -152,3 +152,11 @@ def test_settings_are_checked():
         Planner(PatternLibrary(), actions=[])
     with pytest.raises(ValueError):
         Planner(learned("1 R 2")).plan([], 2 + POS)
+
+
+def test_a_bounded_search_loses_mass_but_still_plans(simple_library):
+    planner = Planner(simple_library, settings=PlannerSettings(max_states=8))
+    plan = planner.plan([((), (4 + 1,))], 11 + 1)
+    assert plan.explore  # the goal lies beyond the states searched
+    plan = planner.plan([((), (4 + 1,))], 6 + 1)
+    assert plan.actions[0] == (POINTER_R,) and not plan.explore
