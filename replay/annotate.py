@@ -143,7 +143,9 @@ def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
         out.add_metadata("slearn.replay", {
             "source": outcome.name, "mode": evaluation.mode,
             "library": str((evaluation.setup.get("library") or {}).get("path")),
-            "accuracy": f"{evaluation.accuracy:.6f}"})
+            "accuracy": f"{evaluation.accuracy:.6f}",
+            "surprise": "lower bound (online: 1 - score when wrong)" if evaluation.mode == "online"
+                        else "-log2 of the chosen context's share of what happened"})
         topics = [out.register_channel(t, s["title"], s) for t, s in
                   ((PREDICTION_TOPIC, PREDICTION_SCHEMA), (CORRECT_TOPIC, CORRECT_SCHEMA),
                    (SURPRISE_TOPIC, SURPRISE_SCHEMA))]

@@ -502,3 +502,20 @@ def test_step_times_match_the_steps_of_every_mode(tmp_path, mode, tick_ns):
         assert times[1] == 50_000_000 and times[-1] == 199 * 100_000_000 + 50_000_000
     else:
         assert times[1] == tick_ns
+
+
+def test_frozen_surprise_uses_the_probability_of_what_happened():
+    library = PatternLibrary()
+    library.learn(pointer_episode("error", trials=5000, seed=0, error_deg=8.0))
+    episode = pointer_episode("error", trials=3000, seed=3, error_deg=8.0)
+    [point] = iter_evaluation(library, held_out(episode), pointer_vocabulary(),
+                              truth_probability=True)
+    o = point.outcome
+    right, wrong = o.predicted == o.actual, (o.predicted != o.actual) & (o.predicted >= 0)
+    assert right.any() and wrong.any()
+    assert np.allclose(o.truth_probability[right], o.score[right])  # agrees with run_online
+    assert (o.truth_probability[wrong] <= 1 - o.score[wrong] + 1e-12).all()
+    in_top = wrong & (o.top[:, 1:] == o.actual[:, None]).any(axis=1)
+    assert (o.truth_probability[in_top] > 0).any()
+    bits = o.surprise_bits()
+    assert np.allclose(bits[in_top], -np.log2(np.maximum(o.truth_probability[in_top], SURPRISE_FLOOR)))
