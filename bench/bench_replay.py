@@ -51,9 +51,9 @@ def bench_core(trials: int, train_trials: int, condition: str, online: bool) -> 
         result = evaluate(library, [("held-out", episode, None)], pointer_vocabulary(),
                           online=online, baselines=baselines)
         best = result if best is None or result.elapsed_s < best.elapsed_s else best
-    return {"what": f"core {condition} {'online' if online else 'frozen'}", "predictions": best.predictions,
-            "seconds": round(best.elapsed_s, 4), "predictions_per_s": round(best.predictions_per_s),
-            "accuracy": round(best.accuracy, 4)}
+    return {"what": f"core {condition} {'online' if online else 'frozen'}",
+            "predictions": best.predictions, "seconds": round(best.elapsed_s, 4),
+            "predictions_per_s": round(best.predictions_per_s), "accuracy": round(best.accuracy, 4)}
 
 
 def bench_predictor(trials: int, train_trials: int, online: bool) -> dict:

@@ -363,7 +363,8 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
         _collect(result, point, wrong, keep_outcomes)
         if progress:
             _progress_line(point)
-    result.confusions = [(decoder.label(p), decoder.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
+    result.confusions = [(decoder.label(p), decoder.label(a), n)
+                         for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
     scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
     result.scoring = asdict(scoring)

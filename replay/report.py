@@ -44,7 +44,8 @@ def format_table(evaluation: Evaluation) -> str:
     for c in e.channels.to_list():
         lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
                      f"{_pct(c['frequency_accuracy']):>10} {_pct(c['markov_accuracy']):>10}")
-    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10} {'frequency':>10} {'markov':>10}"]
+    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10} "
+                  f"{'frequency':>10} {'markov':>10}"]
     for ep in e.episodes:
         mark = " (truncated)" if ep.truncated else ""
         lines.append(f"  {os.path.basename(ep.name) + mark:<40} {ep.tally.events:>9} "
@@ -97,9 +98,10 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
                       _pct(c["markov_accuracy"])] for c in e.channels.to_list()]),
              "<h2>Logs</h2>",
              _table(["log", "events", "library", "abstained", "frequency", "markov", "truncated"],
-                    [[ep.name, ep.tally.events, _pct(ep.tally.accuracy), _pct(ep.tally.rate("abstained")),
-                      _pct(ep.tally.rate("frequency")), _pct(ep.tally.rate("markov")),
-                      "yes" if ep.truncated else ""] for ep in e.episodes]),
+                    [[ep.name, ep.tally.events, _pct(ep.tally.accuracy),
+                      _pct(ep.tally.rate("abstained")), _pct(ep.tally.rate("frequency")),
+                      _pct(ep.tally.rate("markov")), "yes" if ep.truncated else ""]
+                     for ep in e.episodes]),
              "<h2>Most frequent confusions</h2>",
              _table(["count", "predicted", "actual"], [[n, p, a] for p, a, n in e.confusions])
              if e.confusions else "<p>none</p>",

@@ -34,9 +34,10 @@ role = "observation"
 def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("replay_cli")
     out = {"folder": folder}
-    for name, config in {"train": PointerConfig("simple", trials=3000, seed=0),
-                         "test": PointerConfig("simple", trials=1500, seed=3),
-                         "reversal": PointerConfig("reversal", trials=2000, seed=4, switch_trial=800)}.items():
+    configs = {"train": PointerConfig("simple", trials=3000, seed=0),
+               "test": PointerConfig("simple", trials=1500, seed=3),
+               "reversal": PointerConfig("reversal", trials=2000, seed=4, switch_trial=800)}
+    for name, config in configs.items():
         out[name] = folder / f"{name}.mcap"
         record_pointer(config, out[name])
     library, vocabulary = PatternLibrary(), Vocabulary()
