@@ -31,6 +31,7 @@ pure (no I/O); its search runs in compiled kernels over the index's arrays.
 
 from __future__ import annotations
 
+import math
 from collections import namedtuple
 from dataclasses import dataclass
 from typing import Iterable, Sequence
@@ -105,6 +106,12 @@ class PlannerSettings:
     curiosity: float = 0.5
     min_probability: float = 0.01
     max_states: int = 20_000
+    half_life: float = 0.0
+
+    @property
+    def fade_rate(self) -> float:
+        """Per-step fading of the library's weights (0 when ``half_life`` is 0)."""
+        return math.log(2.0) / self.half_life if self.half_life > 0 else 0.0
 
     def __post_init__(self) -> None:
         if not 0 <= self.order <= 8:
@@ -178,7 +185,7 @@ class Planner:
             graph = self._graph_for(len(action_tokens))
             self._reset_states()
             if _build(index, self._states, self._node_state, graph, start, action_tokens, goal_mask,
-                      s.order, s.prior, s.novelty, s.horizon):
+                      s.order, s.prior, s.novelty, self.library.clock, s.fade_rate, s.horizon):
                 return graph
             self._graph = _new_graph(s.max_states, 2 * s.order + 1, len(action_tokens), 2 * len(graph.nxt))
 
@@ -256,13 +263,16 @@ def _best_action(q: np.ndarray, reach: np.ndarray) -> int:
 
 
 @numba.njit(cache=True)
-def _weights(index, node, outcomes, k, out):
-    """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``."""
+def _weights(index, node, outcomes, k, out, clock, rate):
+    """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``.
+
+    Weights fade with the age of their newest sighting (``rate`` per step, 0 = never).
+    """
     out[:k] = 0.0
     total = 0.0
     e = index.head[node]
     while e != -1:
-        w = float(index.weight[e])
+        w = float(index.weight[e]) * np.exp(-rate * (clock - index.last_seen[e]))
         total += w
         for i in range(k):
             if outcomes[i] == index.outcome[e]:
@@ -272,7 +282,8 @@ def _weights(index, node, outcomes, k, out):
 
 
 @numba.njit(cache=True)
-def distribution(index, tokens, obs_pos, action, levels, prior, novelty, cand, outcomes, probs, work):
+def distribution(index, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand, outcomes,
+                 probs, work):
     """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
 
     Blends contexts of order 0 to ``levels - 1`` (see the module docstring). Fills
@@ -289,12 +300,12 @@ def distribution(index, tokens, obs_pos, action, levels, prior, novelty, cand, o
         outcomes[k] = index.outcome[e]
         k += 1
         e = index.next[e]
-    total = _weights(index, cand[0], outcomes, k, probs)
+    total = _weights(index, cand[0], outcomes, k, probs, clock, rate)
     probs[:k] /= total + prior
     unknown = prior / (total + prior)
     keep = prior * (1.0 - novelty)
     for level in range(1, levels):
-        total = _weights(index, cand[level], outcomes, k, work) if level < n else 0.0
+        total = _weights(index, cand[level], outcomes, k, work, clock, rate) if level < n else 0.0
         for i in range(k):
             probs[i] = (work[i] * (level < n) + keep * probs[i]) / (total + prior)
         unknown = (keep * unknown + prior * novelty) / (total + prior)
@@ -337,7 +348,8 @@ def _state_id(states, node_state, tokens, length, graph):
 
 
 @numba.njit(cache=True)
-def _build(index, states, node_state, graph, start, actions, goal_mask, order, prior, novelty, horizon):
+def _build(index, states, node_state, graph, start, actions, goal_mask, order, prior, novelty, clock,
+           rate, horizon):
     """Expand every state reachable within ``horizon`` steps from ``start`` (breadth first).
 
     Returns False when the transition arrays ran out of room (grow them and build again).
@@ -357,7 +369,7 @@ def _build(index, states, node_state, graph, start, actions, goal_mask, order, p
             graph.unknown[s * n_act + j] = 0.0
             if not graph.goal[s] and graph.depth[s] < horizon:
                 if not _expand(index, states, node_state, graph, s, s * n_act + j, actions[j],
-                               goal_mask, order, prior, novelty, scratch):
+                               goal_mask, order, prior, novelty, clock, rate, scratch):
                     return False
             graph.offsets[s * n_act + j + 1] = graph.size[1]
         s += 1
@@ -365,7 +377,8 @@ def _build(index, states, node_state, graph, start, actions, goal_mask, order, p
 
 
 @numba.njit(cache=True)
-def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty, scratch):
+def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty, clock,
+            rate, scratch):
     """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
 
     Returns False when the transition arrays are out of room.
@@ -373,8 +386,8 @@ def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, p
     cand, outcomes, probs, work, buf = scratch
     length = graph.length[s]
     levels = min(order, (length - 1) // 2) + 1
-    k, graph.unknown[sa] = distribution(index, graph.tok[s], length - 1, action, levels,
-                                                   prior, novelty, cand, outcomes, probs, work)
+    k, graph.unknown[sa] = distribution(index, graph.tok[s], length - 1, action, levels, prior,
+                                        novelty, clock, rate, cand, outcomes, probs, work)
     buf[:length] = graph.tok[s, :length]
     buf[length] = action
     keep = min(length + 2, 2 * order + 1)

@@ -103,7 +103,7 @@ def test_distribution_sums_to_one_with_the_unknown_share():
                                table.find(OBSERVATION, (p + 1,))], np.int32)
             for levels in (1, 2):
                 k, unknown = distribution(index, tokens, 2, table.find(ACTION, (POINTER_R,)), levels,
-                                          1.0, 0.5, cand, outcomes, probs, work)
+                                          1.0, 0.5, library.clock, 0.001, cand, outcomes, probs, work)
                 assert k >= 1 and 0.0 < unknown < 1.0
                 assert probs[:k].sum() + unknown == pytest.approx(1.0)
                 checked += 1
