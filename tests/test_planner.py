@@ -160,3 +160,12 @@ def test_a_bounded_search_loses_mass_but_still_plans(simple_library):
     assert plan.explore  # the goal lies beyond the states searched
     plan = planner.plan([((), (4 + 1,))], 6 + 1)
     assert plan.actions[0] == (POINTER_R,) and not plan.explore
+
+
+def test_half_life_lets_recent_outcomes_outweigh_old_ones():
+    library = learned("1 R 2", max_length=1, times=10)
+    library.learn(pointer_episode("5 " + " ".join(["L 5"] * 200)))  # time passes elsewhere
+    library.learn(pointer_episode("1 R 3 L 1 R 3 L 1 R 3"))
+    steady = Planner(library).plan(steps("1"), 3 + POS)
+    fading = Planner(library, settings=PlannerSettings(half_life=20)).plan(steps("1"), 3 + POS)
+    assert steady.probability < 0.5 < fading.probability
