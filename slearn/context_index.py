@@ -149,13 +149,22 @@ def add_entry(index, node, outcome, delta, last_seen):
 @numba.njit(cache=True)
 def add_pattern(index, tokens, length, delta, last_seen):
     """Credit every (context, outcome) inside the pattern ``tokens[:length]``."""
+    add_extension(index, tokens, length, delta, delta, last_seen)
+
+
+@numba.njit(cache=True)
+def add_extension(index, tokens, length, prefix_delta, last_delta, last_seen):
+    """Credit the pattern ``tokens[:length]``: ``prefix_delta`` to the contexts inside its
+    prefix (one step shorter), ``last_delta`` to those ending at its last step. A new
+    pattern whose prefix was counted in the same parse credits its prefix twice."""
     for j in range(1, length - 1, 2):
         outcome = tokens[j + 1]
+        step_delta = last_delta if j == length - 2 else prefix_delta
         node = 0
         for i in range(j, -1, -1):
             node = child_or_add(index.trie, node, tokens[i])
             if (i & 1) == 0:
-                add_entry(index, node, outcome, delta, last_seen)
+                add_entry(index, node, outcome, step_delta, last_seen)
 
 
 @numba.njit(cache=True)

@@ -141,3 +141,38 @@ def test_online_prediction_agrees_with_single_predictions():
         got = single.predict(history[:t], history[t][0])
         expected = None if online.predicted[t - 1] < 0 else library.tokens.symbols(online.predicted[t - 1])
         assert got.observations == expected
+
+
+def _index_contents(index):
+    from slearn.hashtrie import path_tokens
+    buf = np.zeros(64, np.int32)
+    contents = {}
+    for node in range(1, int(index.trie.size[0])):
+        e = index.head[node]
+        if e == -1:
+            continue
+        context = tuple(buf[:path_tokens(index.trie, node, buf)].tolist())
+        outcomes = {}
+        while e != -1:
+            outcomes[int(index.outcome[e])] = (int(index.weight[e]), int(index.last_seen[e]))
+            e = index.next[e]
+        best = int(index.outcome[index.best[node]])
+        assert outcomes[best][0] == max(w for w, _ in outcomes.values())
+        assert int(index.total[node]) == sum(w for w, _ in outcomes.values())
+        contents[context] = outcomes
+    return contents
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4))
+def test_index_kept_in_step_with_learning_equals_one_built_afresh(seed, max_length):
+    from slearn.context_index import index_library
+    rng = np.random.default_rng(seed)
+    library = PatternLibrary(max_length)
+    predictor = Predictor(library)
+    for _ in range(3):
+        obs = rng.integers(0, 4, 150)
+        run_online(predictor, Episode.from_pairs(obs[:1], rng.integers(100, 102, 149), obs[1:]))
+    n = int(library._trie.size[0])
+    fresh = index_library(library._trie, library._count[:n], library._last_seen[:n], max_length)
+    assert _index_contents(library.context_index()) == _index_contents(fresh)
