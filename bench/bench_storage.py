@@ -6,8 +6,9 @@
    with ``slearn.learn.learn_files``, next to the paper's figure for the simple system
    (2155 patterns in 599 kB).
 
-Load times are warm (compiled kernels already loaded in the process); the first load in
-a process also pays for loading numba's cached machine code, shown separately.
+Load times are warm (compiled kernels already loaded in the process: the pointer runs go
+first); the first load in a process also pays for loading numba's cached machine code.
+Wall and process CPU times are both shown: CPU time is steadier on a shared machine.
 
 Run: ``python bench/bench_storage.py [--steps N]``.
 """
@@ -61,6 +62,13 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
+def cpu_timed(fn, *args, **kwargs):
+    """``(result, wall seconds, process CPU seconds)``: CPU time is steadier on a busy machine."""
+    cpu = time.process_time()
+    out, wall = timed(fn, *args, **kwargs)
+    return out, wall, time.process_time() - cpu
+
+
 def same_library(a: PatternLibrary, b: PatternLibrary) -> bool:
     ea, eb = a.export(), b.export()
     return a.clock == b.clock and all(np.array_equal(ea[k], eb[k]) for k in ea)
@@ -71,16 +79,16 @@ def bench_big(folder: Path, steps: int) -> None:
     _, learn_s = timed(library.learn, random_walk(steps))
     vocabulary = walk_vocabulary()
     path = folder / "big.parquet"
-    summary, save_s = timed(save_library, path, library, vocabulary, spec=None,
-                            params={"scoring": "adaptive"}, provenance={}, overwrite=True)
-    _, cold_s = timed(load_library, path)
-    loads = [timed(load_library, path) for _ in range(3)]
-    loaded, load_s = min(loads, key=lambda x: x[1])
+    summary, save_s, save_cpu = cpu_timed(save_library, path, library, vocabulary, spec=None,
+                                          params={"scoring": "adaptive"}, provenance={}, overwrite=True)
+    loads = [cpu_timed(load_library, path) for _ in range(3)]
+    loaded = loads[0][0]
     print(f"random walk, {steps:,} steps over {len(vocabulary):,} symbols (learned in {learn_s:.2f} s)")
     print(f"  patterns {summary.n_patterns:,}  file {summary.size_bytes:,} B  "
           f"{summary.bytes_per_pattern:.2f} B/pattern")
-    print(f"  save {save_s:.3f} s  load {load_s:.3f} s (best of 3; first load in process "
-          f"{cold_s:.3f} s)  identical after load: {same_library(library, loaded.library)}")
+    print(f"  save {save_s:.3f} s wall, {save_cpu:.3f} s CPU")
+    print(f"  load {min(x[1] for x in loads):.3f} s wall, {min(x[2] for x in loads):.3f} s CPU "
+          f"(best of 3)  identical after load: {same_library(library, loaded.library)}")
     print(f"  in memory: library arrays {library.nbytes() / len(library):.1f} B/pattern")
 
 
@@ -89,7 +97,7 @@ def bench_pointer(folder: Path, trials: int) -> None:
           f"(paper, simple: {PAPER_PATTERNS} patterns in {PAPER_BYTES / 1000:.0f} kB = "
           f"{PAPER_BYTES / PAPER_PATTERNS:.0f} B/pattern)")
     print(f"  {'condition':<10} {'patterns':>9} {'bytes':>9} {'B/pattern':>10} {'vs paper':>9} "
-          f"{'learn+save s':>13} {'load s':>8}")
+          f"{'learn+save s':>13} {'load s':>8} {'RAM B/pat':>10}")
     for condition in CONDITIONS:
         log = folder / f"{condition}.mcap"
         record_pointer(PointerConfig(condition, trials, 0, switch_trial=trials // 2), log, overwrite=True)
@@ -97,8 +105,10 @@ def bench_pointer(folder: Path, trials: int) -> None:
         loaded, load_s = timed(load_library, folder / f"{condition}.parquet")
         assert len(loaded.library) == result.n_patterns
         ratio = (PAPER_BYTES / PAPER_PATTERNS) / result.bytes_per_pattern
+        memory = loaded.library.nbytes() / result.n_patterns
         print(f"  {condition:<10} {result.n_patterns:>9,} {result.size_bytes:>9,} "
-              f"{result.bytes_per_pattern:>10.1f} {ratio:>8.0f}x {learn_s:>13.3f} {load_s:>8.3f}")
+              f"{result.bytes_per_pattern:>10.1f} {ratio:>8.0f}x {learn_s:>13.3f} {load_s:>8.3f} "
+              f"{memory:>10.0f}")
 
 
 def main() -> None:

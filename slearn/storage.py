@@ -16,10 +16,12 @@ belongs to the table named in its ``table`` column, each table has its own row g
     token_symbols list<int32>          token       the token's symbols
     pattern       list<int32>          pattern     symbols of the tokens O A O ... O, flattened
     token_sizes   list<int32>          pattern     symbols per token (a step may have 0, 1, many)
+    parent        int32                pattern     row of the prefix one step shorter, -1 if none
     count         int64                pattern     times seen
     last_seen     int64                pattern     recency, a step on the library clock
 
-Patterns come in recording order. The schema's key-value metadata ``slearn`` is a small
+Patterns come in recording order (a prefix before its extensions); ``parent`` only speeds
+up loading (each pattern is attached to its prefix instead of walked from the root). The schema's key-value metadata ``slearn`` is a small
 JSON document (read cheaply with ``pq.read_schema``): ``format``, ``version``, learner
 ``params`` (max_length, max_patterns, scoring), ``library`` (clock, forgotten, patterns,
 channels with roles, rows per table), ``spec`` (fitted edges included, or null) and
@@ -72,6 +74,7 @@ SCHEMA = pa.schema([
     ("token_symbols", _INT32),
     ("pattern", _INT32),
     ("token_sizes", _INT32),
+    ("parent", pa.int32()),
     ("count", pa.int64()),
     ("last_seen", pa.int64()),
 ])
@@ -246,6 +249,7 @@ def _pattern_table(library: PatternLibrary, path: Path) -> pa.Table:
     return _table("pattern", len(export["count"]), {
         "pattern": _list_array(symbol_offsets, symbols, path),
         "token_sizes": _list_array(export["pattern_offsets"], sizes, path),
+        "parent": pa.array(library.pattern_parents().astype(np.int32), pa.int32()),
         "count": pa.array(export["count"], pa.int64()),
         "last_seen": pa.array(export["last_seen"], pa.int64()),
     })
@@ -436,15 +440,17 @@ class _PatternColumns:
     sizes: np.ndarray
     count: np.ndarray
     last_seen: np.ndarray
+    parent: np.ndarray
 
 
 def _read_pattern_columns(parquet: pq.ParquetFile, groups: list[int], path: Path) -> _PatternColumns:
-    table = _read(parquet, groups, ["pattern", "token_sizes", "count", "last_seen"])
+    table = _read(parquet, groups, ["pattern", "token_sizes", "count", "last_seen", "parent"])
     symbol_offsets, symbols = _list_parts(table.column("pattern"), "pattern", path)
     token_offsets, sizes = _list_parts(table.column("token_sizes"), "token_sizes", path)
     columns = _PatternColumns(symbol_offsets, symbols, token_offsets, sizes,
                               _numbers(table.column("count"), "count", path).astype(np.int64),
-                              _numbers(table.column("last_seen"), "last_seen", path).astype(np.int64))
+                              _numbers(table.column("last_seen"), "last_seen", path).astype(np.int64),
+                              _numbers(table.column("parent"), "parent", path).astype(np.int64))
     ends = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)])
     if len(sizes) and sizes.min() < 0 or not np.array_equal(ends[token_offsets], symbol_offsets):
         raise LibraryFormatError(f"{path}: pattern token sizes do not add up to the patterns")
@@ -465,7 +471,7 @@ def _pattern_arrays(columns: _PatternColumns, tokens: TokenTable, max_length: in
     if len(token_ids) and token_ids.min() < 0:
         raise LibraryFormatError(f"{path}: a pattern holds a step missing from the token table")
     return {"pattern_offsets": columns.token_offsets, "pattern_tokens": token_ids,
-            "count": columns.count, "last_seen": columns.last_seen}
+            "count": columns.count, "last_seen": columns.last_seen, "pattern_parent": columns.parent}
 
 
 def load_library(path: str | os.PathLike) -> LoadedLibrary:

@@ -428,3 +428,57 @@ def test_tables_split_over_many_row_groups_round_trip(tmp_path, monkeypatch):
     loaded = load_library(tmp_path / "lib.parquet")
     assert_same_library(library, loaded.library)
     assert list(loaded.vocabulary.items()) == list(mixed_vocabulary().items())
+
+
+def rewrite(source, target, change):
+    """Copy a library file with ``change(table)`` applied, one row group per table as saved."""
+    table = change(pq.read_table(source))
+    names = table.column("table").to_pylist()
+    with pq.ParquetWriter(target, table.schema) as writer:
+        for name in ("vocabulary", "token", "pattern"):
+            rows = [i for i, n in enumerate(names) if n == name]
+            writer.write_table(table.slice(rows[0], len(rows)))
+
+
+def test_parent_column_names_each_pattern_prefix_and_is_only_a_hint(tmp_path):
+    library = learned(seed=4)
+    save(tmp_path / "lib.parquet", library)
+    rows = pq.read_table(tmp_path / "lib.parquet").to_pylist()
+    patterns = [r for r in rows if r["table"] == "pattern"]
+    for row in patterns:
+        if row["parent"] >= 0:
+            prefix = patterns[row["parent"]]
+            assert len(prefix["token_sizes"]) == len(row["token_sizes"]) - 2
+            assert row["pattern"][: len(prefix["pattern"])] == prefix["pattern"]
+        else:
+            assert len(row["token_sizes"]) == 3
+
+    def scramble(table):
+        parent = np.asarray(table.column("parent").fill_null(0))
+        noise = np.random.default_rng(0).integers(-1, len(patterns), len(parent)).astype(np.int32)
+        scrambled = np.where(np.asarray(table.column("table")) == "pattern", noise, parent)
+        index = table.schema.get_field_index("parent")
+        return table.set_column(index, "parent", pa.array(scrambled, pa.int32()))
+
+    rewrite(tmp_path / "lib.parquet", tmp_path / "scrambled.parquet", scramble)
+    assert_same_library(library, load_library(tmp_path / "scrambled.parquet").library)
+
+
+def test_wrong_parent_hints_that_undercount_nodes_still_rebuild_exactly():
+    library = learned(seed=6, episodes=4, steps=2_000)
+    arrays = library.export()
+    right = PatternLibrary.from_export({**arrays, "pattern_parent": library.pattern_parents()},
+                                       library.tokens, library.clock, library.max_length)
+    assert_same_library(library, right)
+    # 1 pattern O A O then 2,000 unrelated O A O A O patterns, all "hinted" to the first:
+    # the hints pass the length check, so the node estimate is far too small
+    n = 2_000
+    tokens = np.arange(5 * n).reshape(n, 5)
+    flat = np.concatenate([[0, 1, 2], tokens.ravel() + 3]).astype(np.int32)
+    synthetic = {"pattern_offsets": np.concatenate([[0], 3 + 5 * np.arange(n + 1)]).astype(np.int64),
+                 "pattern_tokens": flat, "count": np.arange(n + 1) + 1, "last_seen": np.arange(n + 1)}
+    hints = np.concatenate([[-1], np.zeros(n, np.int64)])
+    plain = PatternLibrary.from_export(synthetic, TokenTable(), n + 1, 2)
+    hinted = PatternLibrary.from_export({**synthetic, "pattern_parent": hints}, TokenTable(), n + 1, 2)
+    assert_same_library(plain, hinted)
+    assert len(hinted) == n + 1 and hinted.export()["count"].tolist() == list(range(1, n + 2))
