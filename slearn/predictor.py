@@ -243,23 +243,31 @@ def _share(index, node, outcome):
 
 @numba.njit(cache=True)
 def _rank_node(index, node, top_tok, top_score, filled):
+    """Append the node's best outcomes not yet listed, in rank order, in one scan."""
     k = len(top_tok)
-    while filled < k:
-        best = -1
-        e = index.head[node]
-        while e != -1:
-            taken = False
-            for i in range(filled):
-                if top_tok[i] == index.outcome[e]:
-                    taken = True
-            if not taken and (best == -1 or ranks_above(index, e, best)):
-                best = e
-            e = index.next[e]
-        if best < 0:
-            break
-        top_tok[filled] = index.outcome[best]
-        top_score[filled] = index.weight[best] / index.total[node]
-        filled += 1
+    start = filled
+    e = index.head[node]
+    while e != -1:
+        o = index.outcome[e]
+        taken = False
+        for i in range(filled):
+            if top_tok[i] == o:
+                taken = True
+                break
+        if not taken:
+            # insertion into the node's own sorted run top_tok[start:filled]
+            pos = filled
+            while pos > start and ranks_above(index, e, find_entry(index, node, top_tok[pos - 1])):
+                pos -= 1
+            if pos < k:
+                last = min(filled, k - 1)
+                for i in range(last, pos, -1):
+                    top_tok[i] = top_tok[i - 1]
+                    top_score[i] = top_score[i - 1]
+                top_tok[pos] = o
+                top_score[pos] = index.weight[e] / index.total[node]
+                filled = min(filled + 1, k)
+        e = index.next[e]
     return filled
 
 

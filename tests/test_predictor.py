@@ -176,3 +176,32 @@ def test_index_kept_in_step_with_learning_equals_one_built_afresh(seed, max_leng
     n = int(library._trie.size[0])
     fresh = index_library(library._trie, library._count[:n], library._last_seen[:n], max_length)
     assert _index_contents(library.context_index()) == _index_contents(fresh)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 6))
+def test_ranked_list_starts_with_the_longest_context_ranked_like_brute_force(seed, top_k):
+    rng = np.random.default_rng(seed)
+    obs = rng.integers(0, 6, 401)
+    train = Episode.from_pairs(obs[:1], rng.integers(100, 102, 400), obs[1:])
+    library = PatternLibrary(3)
+    library.learn(train)
+    naive = NaiveLibrary(3)
+    naive.learn(library.tokens.tokenize(train).tolist())
+    history = Episode.from_pairs(obs[:1], rng.integers(100, 102, 30), obs[1:31]).steps()
+    past, action = history[:-1], history[-1][0]
+    prediction = Predictor(library, "literal", top_k=top_k).predict(past, action)
+    if prediction.abstained:
+        return
+    order = prediction.matched_length
+    table = library.tokens
+    context = [table.find(1, action)]
+    for i in range(len(past) - 1, len(past) - 2 - order, -1):
+        context.insert(0, table.find(0, past[i][1]))
+        if i > len(past) - 1 - order:
+            context.insert(0, table.find(1, past[i][0]))
+    stats = naive_context_stats(naive.patterns, tuple(context))
+    expected = sorted(stats, key=lambda o: (-stats[o][0], -stats[o][1], o))[:top_k]
+    ranked = [table.find(0, observations) for observations, _ in prediction.ranked]
+    assert ranked[: len(expected)] == expected
+    assert len(set(ranked)) == len(ranked) <= top_k
