@@ -159,6 +159,21 @@ def test_a_spec_that_does_not_fit_the_logs_is_one_line_and_touches_nothing(logs,
     assert os.listdir(tmp_path) == ["lib.parquet"]
 
 
+def test_a_spec_file_is_used_and_a_topic_it_lacks_is_named(logs, tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text('mode = "message"\n[[channel]]\ntopic = "/pointer/position"\nfield = "position"\n'
+                    'role = "observation"\n')
+    result = learn(logs["simple"], "-o", tmp_path / "pos.parquet", "--spec", spec, "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["events"] == TRIALS + 1  # positions only
+    assert [c.name for c in load_library(tmp_path / "pos.parquet").spec.channels] == ["/pointer/position"]
+    spec.write_text(spec.read_text().replace("/pointer/position", "/arm/joint"))
+    result = learn(logs["simple"], "-o", tmp_path / "arm.parquet", "--spec", spec)
+    assert result.exit_code == 1
+    assert "the spec's topic '/arm/joint' is not in this log" in result.stderr
+    assert not (tmp_path / "arm.parquet").exists()
+
+
 def test_a_resumed_spec_that_does_not_fit_a_new_log_is_refused(logs, tmp_path):
     other = tmp_path / "other.mcap"
     with EpisodeWriter(other) as writer:
