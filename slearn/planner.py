@@ -17,10 +17,11 @@ and searches it:
   library has never seen is unknown; a context seen often speaks for itself.
 * **Search**: value iteration over the states reachable within ``horizon`` steps, goal
   observations absorbing with value 1, each step discounted by ``discount`` (fewer steps
-  win), unknown outcomes worth ``curiosity`` (so an untried action from a new context
-  gets tried when the known routes are long). The probability reported is the library's
-  probability of reaching the goal within the horizon with the plan's closed-loop policy,
-  unknown outcomes counted as failures.
+  win). An unknown outcome counts as a step lost in place (worth ``curiosity`` times the
+  value of staying), so a route the library saw only once still beats an action it never
+  saw; untried actions get their turn through curiosity (below). The
+  probability reported is the library's probability of reaching the goal within the
+  horizon with the plan's closed-loop policy.
 * **Curiosity**: when no known route reaches the goal, the action tried least often from
   the current observation (the library's counts) is taken, so stale patterns are retested
   after the world changes.
@@ -93,7 +94,7 @@ class PlannerSettings:
         discount: value kept per step (below 1: fewer steps win).
         prior: pseudo-counts of the shorter context in a longer one's distribution.
         novelty: share of those pseudo-counts that stands for an unknown outcome.
-        curiosity: value of reaching an unknown outcome.
+        curiosity: value of an unknown outcome, as a share of the value of staying put.
         min_probability: below this probability of reaching the goal there is no route.
         max_states: states searched at most (the rest count as failures).
     """
@@ -103,7 +104,7 @@ class PlannerSettings:
     discount: float = 0.95
     prior: float = 1.0
     novelty: float = 0.5
-    curiosity: float = 0.5
+    curiosity: float = 1.0
     min_probability: float = 0.01
     max_states: int = 20_000
     half_life: float = 0.0
@@ -412,12 +413,16 @@ def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, p
 
 
 @numba.njit(cache=True)
-def _q(offsets, nxt, prob, unknown, value, reach, sa, discount, curiosity):
+def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity):
+    """Value and probability of reaching the goal after action ``sa`` from state ``s``.
+
+    An unknown outcome counts as a step lost in place, worth ``curiosity`` times staying.
+    """
     v, r = 0.0, 0.0
     for e in range(offsets[sa], offsets[sa + 1]):
         v += prob[e] * value[nxt[e]]
         r += prob[e] * reach[nxt[e]]
-    return discount * (v + unknown[sa] * curiosity), r
+    return discount * (v + unknown[sa] * curiosity * value[s]), r + unknown[sa] * reach[s]
 
 
 @numba.njit(cache=True)
@@ -437,7 +442,7 @@ def _values(graph, n_act, horizon, discount, curiosity):
                 continue
             best, best_r = -1.0, -1.0
             for j in range(n_act):
-                v, p = _q(offsets, nxt, prob, unknown, value, reach, s * n_act + j, discount, curiosity)
+                v, p = _q(offsets, nxt, prob, unknown, value, reach, s, s * n_act + j, discount, curiosity)
                 q[s * n_act + j], r[s * n_act + j] = v, p
                 if v > best + 1e-12 or (v > best - 1e-12 and p > best_r):
                     best, best_r = v, p

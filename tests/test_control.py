@@ -11,8 +11,10 @@ from slearn.cli import main
 from slearn.control import (ControlConfig, PointerEnv, PointerSymbols, goal_sequence, offline_library,
                             run_control)
 from slearn.errors import InputError
+from slearn.library import PatternLibrary
 from slearn.qlearning import QLearner
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
+from slearn.stream import Episode
 from slearn.vocabulary import Vocabulary
 
 
@@ -101,6 +103,16 @@ def test_control_recovers_after_the_reversal_as_the_library_relearns():
     assert after[0].summary.steps_ratio > 1.3  # the stale library misleads at first
     assert after[-1].summary.success == 1.0 and after[-1].summary.steps_ratio <= 1.2
     assert after[-1].patterns > before[-1].patterns  # relearned online
+
+
+def test_a_library_that_never_saw_one_command_follows_known_routes_and_discovers_it():
+    library = PatternLibrary()
+    positions = list(range(1, 37)) + [36] * 20  # R only, from 1 up to the hard stop
+    library.learn(Episode.from_pairs([positions[0] + 1], [1] * (len(positions) - 1),
+                                     [p + 1 for p in positions[1:]]))
+    result = run_control(ControlConfig("hardstop", goals=40, seed=0, blocks=4, qlearning=False), library)
+    assert result.slearn.success == 1.0 and result.slearn.explored_steps > 0
+    assert result.blocks[-1].summary.steps_ratio <= 1.1 and result.blocks[-1].summary.explored_steps == 0
 
 
 def test_q_learning_masters_its_goal_but_not_new_ones():
