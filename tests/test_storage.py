@@ -198,6 +198,37 @@ def test_a_failed_save_does_not_touch_the_existing_file(tmp_path):
     assert os.listdir(tmp_path) == ["lib.parquet"]
 
 
+def test_a_write_that_breaks_midway_does_not_touch_the_existing_file(tmp_path, monkeypatch):
+    import errno
+
+    import slearn.storage as storage
+
+    path = tmp_path / "lib.parquet"
+    save(path, learned())
+    before = path.read_bytes()
+
+    def disk_full(tmp, tables, metadata):
+        tmp.write_bytes(b"PAR1 half a file")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(storage, "_write_parquet", disk_full)
+    with pytest.raises(InputError, match=f"{path}: cannot write: No space left on device"):
+        save(path, learned(seed=1), overwrite=True)
+    assert path.read_bytes() == before and os.listdir(tmp_path) == ["lib.parquet"]
+
+
+def test_a_written_file_that_does_not_read_back_is_not_kept(tmp_path, monkeypatch):
+    import slearn.storage as storage
+
+    path = tmp_path / "lib.parquet"
+    save(path, learned())
+    before = path.read_bytes()
+    monkeypatch.setattr(storage, "_write_parquet", lambda tmp, tables, metadata: tmp.write_bytes(b"junk"))
+    with pytest.raises(LibraryFormatError, match="does not read back"):
+        save(path, learned(seed=1), overwrite=True)
+    assert path.read_bytes() == before and os.listdir(tmp_path) == ["lib.parquet"]
+
+
 def test_save_into_a_missing_folder_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         save(tmp_path / "nope" / "lib.parquet", learned())
