@@ -257,7 +257,7 @@ class Summary:
     def of(cls, outcomes: list[GoalOutcome]) -> "Summary":
         real = [o for o in outcomes if o.shortest > 0]
         reached = [o for o in real if o.reached]
-        n = max(len(real), 1)
+        n = len(real) or math.nan  # no goal to reach: rates are undefined
         ratio = float(np.mean([o.steps / o.shortest for o in reached])) if reached else math.nan
         return cls(len(real), len(reached) / n, sum(o.within(1.1) for o in real) / n,
                    sum(o.within(2) for o in real) / n, sum(o.within(3) for o in real) / n, ratio,

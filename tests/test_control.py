@@ -191,3 +191,10 @@ def test_cli_loads_a_saved_library(tmp_path):
     bad.write_bytes(b"not a library")
     out = _cli("--library", bad, "--condition", "simple", "--goals", "5")
     assert out.exit_code == 1 and out.stderr.startswith("slearn: error:")
+
+
+def test_a_goal_already_reached_is_left_out_of_the_rates():
+    start = PointerEnv("simple", 8).label
+    result = run_control(ControlConfig("simple", goal=start, seed=8, trials=1_000, qlearning=False))
+    assert result.outcomes[0].steps == 0 and result.slearn.goals == 0
+    assert result.to_dict()["slearn"]["success"] is None

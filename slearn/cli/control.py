@@ -34,18 +34,20 @@ from slearn.recorders.pointer import CONDITIONS, N_BINS
               help="Random trials learned offline without --library (and the Q-learner's data).")
 @click.option("--order", type=click.IntRange(0, 4), default=PlannerSettings.order, show_default=True,
               help="Steps of history in a planning state.")
+@click.option("--half-life", type=click.FloatRange(0), default=0.0, show_default=True,
+              help="Fade library weights with this half-life in steps (0: never).")
 @click.option("--no-qlearning", is_flag=True, help="Skip the Q-learning baseline.")
 @click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Log the run to this MCAP file (pointer channels and /pointer/goal).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --record file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON document.")
 def command(library_path, condition, goals, goal, seed, budget, blocks, switch_goal, trials, order,
-            no_qlearning, record_path, force, as_json):
+            half_life, no_qlearning, record_path, force, as_json):
     """Steer the simulated pointer to random goals in closed loop, learning as it goes."""
     if record_path is not None and record_path.exists() and not force:
         raise InputError(f"{record_path} already exists: pass --force to overwrite it")
     config = ControlConfig(condition, goals, seed, budget, goal, switch_goal, blocks, trials,
-                           qlearning=not no_qlearning, planner=PlannerSettings(order=order))
+                           qlearning=not no_qlearning, planner=PlannerSettings(order=order, half_life=half_life))
     result = run_control(config, *_load(library_path))
     if record_path is not None:
         write_control_mcap(result, record_path, overwrite=force)
@@ -63,7 +65,7 @@ def _load(path: Path | None):
 
 
 def _percent(x: float) -> str:
-    return f"{100 * x:5.1f} %"
+    return "    - " if math.isnan(x) else f"{100 * x:5.1f} %"
 
 
 def _number(x: float) -> str:
