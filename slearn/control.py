@@ -403,10 +403,12 @@ class QAgent:
         self.goal = 0
 
     def act(self, goal: int) -> tuple[int, bool]:
+        """The epsilon-greedy command from the current label (``goal`` is only remembered)."""
         self.goal = goal
         return self.learner.act(self.label - 1, self.rng), False
 
     def observe(self, command: int, label: int) -> None:
+        """Update the Q-table with the current goal's reward (when learning)."""
         if self.learn:
             self.learner.update(self.label - 1, command, label - 1, self.goal - 1)
         self.label = label

@@ -58,7 +58,7 @@ def command(library_path, condition, goals, goal, seed, budget, blocks, switch_g
 def _load(path: Path | None):
     if path is None:
         return None, None, None
-    from slearn.storage import load_library
+    from slearn.storage import load_library  # pyarrow is imported only when a library is given
 
     loaded = load_library(path)
     return loaded.library, loaded.vocabulary, str(path)
