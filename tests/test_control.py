@@ -175,6 +175,8 @@ def test_cli_records_the_episode_with_the_goal_channel(tmp_path):
     assert goals == [o["goal"] for o in doc["outcomes"]]
     again = _cli("--condition", "simple", "--goals", "3", "--record", path)
     assert again.exit_code == 1 and "already exists" in again.stderr
+    learned = CliRunner().invoke(main, ["learn", str(path), "-o", str(tmp_path / "lib.parquet"), "-q"])
+    assert learned.exit_code == 0, learned.stderr  # a control log is a pointer log like any other
 
 
 def test_cli_loads_a_saved_library(tmp_path):
