@@ -57,7 +57,8 @@ class Plan:
     Attributes:
         actions: the planned action tuples, the one to issue now first (empty when the
             goal is already observed); the most likely path, replanned every step.
-        observations: the most likely observations after each planned action.
+        observations: the most likely observations after each planned action (``()``
+            where an unknown outcome is likelier than any the library knows).
         probability: the library's probability of reaching the goal within the horizon
             with this plan's closed-loop policy (1.0 when already there).
         value: the discounted value the search maximised (probability, fewer steps).
