@@ -243,8 +243,8 @@ class Planner:
         if cached is not None and cached[0] == goals and cached[1] == n:
             return cached[2]
         offsets, symbols, kinds = self.library.tokens.export()
-        hit = np.isin(symbols, np.fromiter(goals, np.int32, len(goals)))
-        per_token = np.add.reduceat(hit.astype(np.int64), offsets[:-1]) if len(symbols) else np.zeros(n)
+        hit = np.isin(symbols, np.fromiter(goals, np.int32, len(goals))).astype(np.int64)
+        per_token = np.add.reduceat(np.append(hit, 0), offsets[:-1])  # the 0 ends an empty last token
         per_token[offsets[:-1] == offsets[1:]] = 0  # reduceat on empty tokens reads the next one
         mask = (per_token > 0) & (kinds == OBSERVATION)
         self._goal_cache = (goals, n, mask)

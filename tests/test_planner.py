@@ -6,6 +6,7 @@ import pytest
 from slearn.library import PatternLibrary
 from slearn.planner import Planner, PlannerSettings, distribution
 from slearn.recorders.pointer import PointerConfig, simulate
+from slearn.stream import Episode
 from slearn.tokens import ACTION, OBSERVATION
 from test_library import L, R, pointer_episode
 
@@ -170,3 +171,12 @@ def test_half_life_lets_recent_outcomes_outweigh_old_ones():
     steady = Planner(library).plan(steps("1"), 3 + POS)
     fading = Planner(library, settings=PlannerSettings(half_life=20)).plan(steps("1"), 3 + POS)
     assert steady.probability < 0.5 < fading.probability
+
+
+def test_goal_mask_copes_with_empty_observation_tokens():
+    library = PatternLibrary()
+    for _ in range(3):  # the empty observation is the last token interned
+        library.learn(Episode.from_steps([((), (2 + POS,)), ((R,), (3 + POS,)), ((R,), ())]))
+    assert library.tokens.find(OBSERVATION, ()) == len(library.tokens) - 1
+    plan = Planner(library).plan([((), (2 + POS,))], 3 + POS)
+    assert plan.action == (R,)
