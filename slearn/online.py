@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from slearn.library import PatternLibrary, has_room, learn_step
+from slearn.library import has_room, learn_step
 from slearn.predictor import Predictor, collect, rank, select, update_cells
 from slearn.stream import Episode
 

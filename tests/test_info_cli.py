@@ -8,29 +8,13 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from mcap.writer import CompressionType, Writer
 
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.info import describe_log, suggest_spec
 from slearn.spec import load_spec
+from fixtures import write_log
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
-
-
-def write_log(path, messages, encodings=None):
-    encodings = encodings or {}
-    with open(path, "wb") as f:
-        writer = Writer(f, chunk_size=1024, compression=CompressionType.NONE)
-        writer.start(profile="", library="slearn-tests")
-        schema = writer.register_schema("Thing", "jsonschema", b"{}")
-        channels = {}
-        for topic, log_time, payload in messages:
-            if topic not in channels:
-                channels[topic] = writer.register_channel(topic, encodings.get(topic, "json"), schema)
-            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time,
-                               data=json.dumps(payload).encode())
-        writer.finish()
-    return Path(path)
 
 
 @pytest.fixture
@@ -41,7 +25,7 @@ def log(tmp_path):
         messages.append(("/state", i * 100_000_000 + 1, {"pose": {"x": i / 4, "ok": True},
                                                          "name": ["a", "b"], "position": [i, -i]}))
     messages.append(("/raw", 5, {"v": 1}))
-    return write_log(tmp_path / "log.mcap", messages, encodings={"/raw": "wrong_format"})
+    return write_log(tmp_path / "log.mcap", messages, encodings={"/raw": "wrong_format"}, chunk_size=1024)
 
 
 def run(*args):

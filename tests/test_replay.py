@@ -21,6 +21,7 @@ from slearn.replay.metrics import nice_window
 from slearn.spec import pointer_spec
 from slearn.stream import Episode
 from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+from fixtures import POINTER_TOML
 
 
 def pointer_episode(condition="simple", trials=2000, seed=0, **kw):
@@ -359,19 +360,6 @@ def test_replay_logs_without_spec_needs_one_and_with_spec_alone_learns_online(lo
     assert [c["channel"] for c in empty.channels.to_list()] == ["/pointer/position"]  # declared late
     assert empty.channels.events.tolist() == [5000]
     assert empty.episodes[0].tally.accuracy < empty.episodes[1].tally.accuracy
-
-
-POINTER_TOML = """mode = "message"
-[[channel]]
-topic = "/pointer/command"
-field = "command"
-role = "action"
-values = ["L", "R"]
-[[channel]]
-topic = "/pointer/position"
-field = "position"
-role = "observation"
-"""
 
 
 def test_annotated_log_holds_the_source_and_one_prediction_per_predicted_event(logs, tmp_path):

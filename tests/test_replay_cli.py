@@ -14,20 +14,9 @@ from slearn.recorders.record_pointer import record_pointer
 from slearn.serialize import read_episodes
 from slearn.spec import pointer_spec
 from slearn.vocabulary import Vocabulary
+from fixtures import POINTER_TOML
 
 storage = pytest.importorskip("slearn.storage")
-
-POINTER_TOML = """mode = "message"
-[[channel]]
-topic = "/pointer/command"
-field = "command"
-role = "action"
-values = ["L", "R"]
-[[channel]]
-topic = "/pointer/position"
-field = "position"
-role = "observation"
-"""
 
 
 @pytest.fixture(scope="module")

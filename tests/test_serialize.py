@@ -7,32 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.writer import CompressionType, Writer
 
 from slearn.errors import SpecError, TruncatedLogWarning
 from slearn.serialize import fit_spec, read_episodes
 from slearn.spec import Spec, load_spec, pointer_spec
 from slearn.vocabulary import Vocabulary
+from fixtures import write_log
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
 ROBOT = SHARED / "robot"
-
-
-def write_log(path, messages, encodings=None, chunk_size=1 << 20):
-    """Write ``(topic, log_time_ns, payload dict)`` as JSON (or another declared encoding)."""
-    encodings = encodings or {}
-    with open(path, "wb") as f:
-        writer = Writer(f, chunk_size=chunk_size, compression=CompressionType.NONE)
-        writer.start()
-        schema = writer.register_schema("Thing", "jsonschema", b"{}")
-        channels = {}
-        for topic, log_time, payload in messages:
-            if topic not in channels:
-                channels[topic] = writer.register_channel(topic, encodings.get(topic, "json"), schema)
-            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time,
-                               data=json.dumps(payload).encode())
-        writer.finish()
-    return Path(path)
 
 
 def pointer_messages(commands, positions):
