@@ -7,7 +7,7 @@ observation it predicted (so in Foxglove the prediction lines up with what happe
 
 * ``/slearn/prediction`` (``slearn.replay.Prediction``): ``step``, ``predicted`` and
   ``actual`` as ``channel=value`` labels, ``correct``, ``abstained``, ``score``,
-  ``matched_steps`` and the ranked guesses ``top``;
+  ``matched_length`` (history tokens matched) and the ranked guesses ``top``;
 * ``/slearn/correct`` (``slearn.replay.Correct``): ``correct`` and ``value`` (1 or 0), to plot;
 * ``/slearn/surprise`` (``slearn.replay.Surprise``): ``bits``, ``-log2`` of the
   probability the library gave what happened (see
@@ -53,7 +53,7 @@ PREDICTION_SCHEMA = {
         "correct": {"type": "boolean"},
         "abstained": {"type": "boolean"},
         "score": {"type": "number", "description": "share of the chosen context's weight"},
-        "matched_steps": {"type": "integer", "description": "steps of history matched, -1 abstained"},
+        "matched_length": {"type": "integer", "description": "history tokens matched (1 = the current observation), -1 abstained"},
         "top": {"type": "array", "items": {"type": "string"}, "description": "ranked guesses"},
     },
     "required": ["step", "predicted", "actual", "correct", "abstained"],
@@ -183,7 +183,7 @@ def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecode
         if body is None:
             body = bodies[key] = _encode({
                 "predicted": label(key[0]), "actual": label(key[1]), "correct": key[0] == key[1],
-                "abstained": key[0] < 0, "score": key[2], "matched_steps": key[3],
+                "abstained": key[0] < 0, "score": key[2], "matched_length": key[3],
                 "top": [label(t) for t in key[4] if t >= 0]})[1:]
         surprise = surprises.get(bits[s])
         if surprise is None:

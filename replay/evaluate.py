@@ -71,7 +71,7 @@ class EpisodeOutcome:
         predicted: the library's prediction, -1 where it abstained.
         top: ``(steps, top_k)`` the library's ranked guesses, -1 padded.
         score: the share of the chosen context's weight behind the prediction.
-        matched_length: steps of history the chosen context spans (-1 abstained).
+        matched_length: history tokens the chosen context spans (-1 abstained).
         frequency: the frequency baseline's prediction (-1 abstained).
         markov: the Markov baseline's prediction (-1 abstained).
         evaluated: steps that count (their observations are not empty).
@@ -307,13 +307,13 @@ def _predict_episode(name: str, episode: Episode, predictor: Predictor, baseline
 def _truth_probability(index, tokens, matched, max_length):
     """Per step, the share of the chosen context's weight behind the observed token."""
     out = np.zeros(len(matched))
-    cand = np.zeros(max_length, np.int32)
+    cand = np.zeros(2 * max_length, np.int32)
     for step in range(1, len(matched) + 1):
         if matched[step - 1] < 0:
             continue
         obs_pos = 2 * step - 2
         collect(index, tokens, obs_pos, tokens[obs_pos + 1], max_length, cand)
-        node = cand[matched[step - 1]]
+        node = cand[matched[step - 1] - 1]
         e = find_entry(index, node, tokens[obs_pos + 2])
         if e >= 0:
             out[step - 1] = index.weight[e] / index.total[node]

@@ -2,13 +2,14 @@
 
 Prediction needs the patterns that *contain* the recent history, anywhere inside them,
 not only as a prefix. The index is a trie over contexts read backwards (the action just
-issued, the observation before it, the action before that, ...). A node whose context
-starts at an observation holds entries ``(outcome, weight, last_seen)``: ``weight`` is the
-sum of the counts of all library patterns in which the context is followed by
-``outcome``, ``last_seen`` the newest ``last_seen`` among them. A pattern of ``m`` steps
-touches ``m (m + 1) / 2`` entries, and a new pattern creates at most ``m`` of them (its
-other contexts are already there from its prefix), so the index grows linearly with the
-library, not with the square of pattern length.
+issued, the observation before it, the action before that, ...). Every context of at least
+one observation and the action after it -- starting at an observation or at an action, as
+a match over the event stream may -- holds entries ``(outcome, weight, last_seen)``:
+``weight`` is the sum of the counts of all library patterns in which the context is
+followed by ``outcome``, ``last_seen`` the newest ``last_seen`` among them. A pattern of
+``m`` steps touches ``m^2`` entries, and a new pattern creates at most ``2m - 1`` of them
+(its other contexts are already there from its prefix), so the index grows linearly with
+the library, not with the square of pattern length.
 """
 
 from __future__ import annotations
@@ -163,7 +164,7 @@ def add_extension(index, tokens, length, prefix_delta, last_delta, last_seen):
         node = 0
         for i in range(j, -1, -1):
             node = child_or_add(index.trie, node, tokens[i])
-            if (i & 1) == 0:
+            if i < j:
                 add_entry(index, node, outcome, step_delta, last_seen)
 
 

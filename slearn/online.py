@@ -23,7 +23,8 @@ class OnlineResult:
     Attributes:
         predicted: predicted observation token per step, -1 where the predictor abstained.
         actual: the observed token per step.
-        matched_length: steps of history matched (-1 when abstaining).
+        matched_length: history tokens matched (see :class:`slearn.predictor.Prediction`;
+            -1 when abstaining).
         score: share of the winning context's weight behind the prediction.
         top: ``(n_steps, top_k)`` ranked tokens, -1 padded.
     """
@@ -67,7 +68,7 @@ def run_online_tokens(predictor: Predictor, tokens: np.ndarray, learn: bool = Tr
         library.begin_episode(tokens)
     frozen_state = np.array([0, 0, 1], np.int64)  # a frozen library keeps its parse state
     scoring = predictor.scoring
-    cand = np.zeros(library.max_length, np.int32)
+    cand = np.zeros(2 * library.max_length, np.int32)
     while True:
         index = library.context_index()
         args = list(library._kernel_args())
@@ -101,7 +102,7 @@ def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clo
             chosen, outcome = select(index, cand, n, cells, rule, n_buckets)
             rank(index, cand, n, chosen, outcome, top[step - 1], top_score)
             predicted[step - 1] = top[step - 1, 0]
-            matched[step - 1] = chosen
+            matched[step - 1] = chosen + 1
             score[step - 1] = top_score[0]
             update_cells(index, cand, n, truth, cells, n_buckets, alpha)
         if learn:

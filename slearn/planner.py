@@ -43,7 +43,7 @@ import numpy as np
 from slearn import hashtrie
 from slearn.hashtrie import child, child_or_add
 from slearn.library import PatternLibrary
-from slearn.predictor import collect
+from slearn.predictor import collect_steps
 from slearn.stream import Step
 from slearn.tokens import ACTION, OBSERVATION
 
@@ -293,7 +293,7 @@ def distribution(index, tokens, obs_pos, action, levels, prior, novelty, clock, 
     """
     if action < 0:
         return 0, 1.0
-    n = collect(index, tokens, obs_pos, action, levels, cand)
+    n = collect_steps(index, tokens, obs_pos, action, levels, cand)
     if n == 0:
         return 0, 1.0
     k = 0

@@ -1,18 +1,19 @@
 """Prediction: what the library says comes next, given the history and the action issued.
 
-The history's suffix (the current observation, the action just issued, and as many
-earlier steps as match) is looked up in the containment index
-(:mod:`slearn.context_index`). Every suffix that occurs inside some library pattern is a
-*candidate context*; its order is the number of whole steps before the current
-observation. Within a context, outcomes rank by weight (the summed counts of the
-patterns that contain it: frequency), then by ``last_seen`` (recency), then by id.
+The history's suffix (the current observation and the action just issued, then as many
+earlier events as match: the action before, the observation before that, ...) is looked
+up in the containment index (:mod:`slearn.context_index`). Every suffix that occurs
+inside some library pattern is a *candidate context*, identified by how many history
+tokens it matches; matches are over events, so a context may begin at an action. Within
+a context, outcomes rank by weight (the summed counts of the patterns that contain it:
+frequency), then by ``last_seen`` (recency), then by id.
 
 Which context speaks is the scoring rule:
 
 * ``literal`` -- the paper read literally: the longest match wins.
 * ``adaptive`` (default) -- every candidate offers two answers, its most frequent
-  outcome and its most recent one. Each answer belongs to a *cell*: (order, support
-  bucket, confidence bucket, frequent-or-recent), where support buckets are powers of
+  outcome and its most recent one. Each answer belongs to a *cell*: (context length,
+  support bucket, confidence bucket, frequent-or-recent), where support buckets are powers of
   two of the context's total weight and confidence buckets the share of its best
   outcome. A cell keeps an exponential moving average of its hits (rate ``alpha``), and
   the answer from the best cell speaks. So a context seen once cannot outvote a short
@@ -73,8 +74,9 @@ class Prediction:
     Attributes:
         observations: the predicted observation symbols, ``None`` when abstaining.
         score: the share of the winning context's weight that backs the prediction.
-        matched_length: whole steps of history matched before the current observation
-            (0 = current observation and action only); -1 when abstaining.
+        matched_length: history tokens matched before the action just issued: 1 = the
+            current observation, 2 = also the action before it, 3 = also the observation
+            before that (one whole step), ...; -1 when abstaining.
         ranked: ``(observations, score)`` best first, up to ``top_k``.
     """
 
@@ -95,7 +97,7 @@ class Predictor:
         self.library = library
         self.scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
         self.top_k = int(top_k)
-        self.cells = np.full(2 * N_CONFIDENCE * library.max_length * self.scoring.buckets, self.scoring.prior)
+        self.cells = np.full(2 * N_CONFIDENCE * 2 * library.max_length * self.scoring.buckets, self.scoring.prior)
 
     def predict(self, history: list[tuple[tuple[int, ...], tuple[int, ...]]],
                 actions: tuple[int, ...]) -> Prediction:
@@ -109,15 +111,15 @@ class Predictor:
             return Prediction(None, 0.0, -1)
         index = self.library.context_index()
         k = self.top_k
-        cand = np.zeros(self.library.max_length, np.int32)
+        cand = np.zeros(2 * self.library.max_length, np.int32)
         top_tok = np.full(k, -1, np.int32)
         top_score = np.zeros(k)
-        order = _predict(index, tokens, len(tokens) - 2, tokens[-1], self.library.max_length, cand,
-                         self.cells, self.scoring.code, self.scoring.buckets, top_tok, top_score)
-        if order < 0:
+        chosen = _predict(index, tokens, len(tokens) - 2, tokens[-1], self.library.max_length, cand,
+                          self.cells, self.scoring.code, self.scoring.buckets, top_tok, top_score)
+        if chosen < 0:
             return Prediction(None, 0.0, -1)
         ranked = [(self.library.tokens.symbols(int(t)), float(s)) for t, s in zip(top_tok, top_score) if t >= 0]
-        return Prediction(ranked[0][0], ranked[0][1], int(order), ranked)
+        return Prediction(ranked[0][0], ranked[0][1], int(chosen) + 1, ranked)
 
     def _context_tokens(self, history, actions) -> np.ndarray | None:
         table = self.library.tokens
@@ -143,8 +145,29 @@ class Predictor:
 
 
 @numba.njit(cache=True)
-def collect(index, tokens, obs_pos, action, max_orders, cand):
-    """Candidate context nodes, order 0 first: ``tokens[obs_pos]`` is the current observation."""
+def collect(index, tokens, obs_pos, action, max_length, cand):
+    """Candidate contexts, shortest first: ``cand[h]`` matches ``h + 1`` history tokens.
+
+    ``tokens[obs_pos]`` is the current observation; candidate 0 is it and ``action``,
+    candidate 1 adds the action before it, candidate 2 the observation before that, and so
+    on while the context occurs inside a pattern (at most ``2 * max_length - 1``).
+    """
+    node = child(index.trie, 0, action)
+    n = 0
+    i = obs_pos
+    while node >= 0 and i >= 0 and n < 2 * max_length - 1:
+        node = child(index.trie, node, tokens[i])
+        if node < 0 or index.head[node] == -1:
+            break
+        cand[n] = node
+        n += 1
+        i -= 1
+    return n
+
+
+@numba.njit(cache=True)
+def collect_steps(index, tokens, obs_pos, action, max_orders, cand):
+    """Candidate contexts that start at an observation, order 0 (no earlier step) first."""
     node = child(index.trie, 0, action)
     n = 0
     i = obs_pos

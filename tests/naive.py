@@ -39,12 +39,12 @@ class NaiveLibrary:
 
 
 def naive_context_stats(patterns: dict[tuple[int, ...], list[int]], context: tuple[int, ...]):
-    """outcome -> [weight, last_seen] over every occurrence of ``context`` (O A ... O A)
-    at an observation position inside a pattern and followed by an outcome."""
+    """outcome -> [weight, last_seen] over every occurrence of ``context`` (ending with an
+    action: ``O A ... O A`` or ``A O ... O A``) inside a pattern and followed by an outcome."""
     stats: dict[int, list[int]] = defaultdict(lambda: [0, -1])
     n = len(context)
     for pattern, (count, last_seen) in patterns.items():
-        for start in range(0, len(pattern) - n, 2):
+        for start in range(n % 2, len(pattern) - n, 2):
             if pattern[start:start + n] == context:
                 entry = stats[pattern[start + n]]
                 entry[0] += count

@@ -43,17 +43,11 @@ def test_random_error_reaches_near_the_ceiling(demo):
     assert 73 <= np.mean(error.ceiling) <= 77
 
 
-@pytest.mark.xfail(strict=True, reason="measured 44.8 % (seeds 0-4), below the 46 % target; "
-                                        "the paper reports just over 45 %")
-def test_random_delay_reaches_the_target(demo):
-    assert np.mean(demo["delay"].accuracy["adaptive"][5:]) >= 46
-
-
-def test_random_delay_beats_the_paper_start_and_stays_under_the_ceiling(demo):
+def test_random_delay_reaches_the_target_under_the_ceiling(demo):
     delay = demo["delay"]
-    assert np.mean(delay.accuracy["adaptive"][5:]) >= 44
-    assert delay.accuracy["adaptive"][-1] > 45
+    assert np.mean(delay.accuracy["adaptive"][5:]) >= 46
     assert 48 <= np.mean(delay.ceiling) <= 52
+    assert max(delay.accuracy["adaptive"]) < max(delay.ceiling)
 
 
 def test_libraries_are_small_like_the_paper(demo):

@@ -33,11 +33,11 @@ def test_reads_off_what_happened_next():
     library.learn(pointer_episode("3 R 4 R 5 L 4 R 5 L 4 L 3 L 2"))
     prediction = Predictor(library).predict(steps("4"), (L,))
     assert prediction.observations == (3 + POS,)
-    assert prediction.matched_length == 0
-    # with more history the longer context is found inside a pattern
+    assert prediction.matched_length == 1  # the current observation
+    # with more history the longer context "4 R 5 L" is found inside a pattern
     prediction = Predictor(library, "literal").predict(steps("4 R 5"), (L,))
     assert prediction.observations == (4 + POS,)
-    assert prediction.matched_length == 1
+    assert prediction.matched_length == 3
 
 
 def test_frequent_outcome_wins_then_recent_one_breaks_ties():
@@ -73,24 +73,31 @@ def test_literal_prediction_matches_brute_force_over_the_patterns(seed, max_leng
         assert (got.observations, got.matched_length) == expected
 
 
-def _brute_force(library, patterns, past, action):
+def _history_tokens(library, past):
     table = library.tokens
-    tokens = [table.find(1, action)]
+    tokens = []
     for i in range(len(past) - 1, -1, -1):
         tokens.insert(0, table.find(0, past[i][1]))
         if i == 0:
             break
         tokens.insert(0, table.find(1, past[i][0]))
+    return tokens
+
+
+def _brute_force(library, patterns, past, action):
+    """The longest context of history tokens + action found inside a pattern, its best outcome."""
+    history = _history_tokens(library, past)
+    action_token = library.tokens.find(1, action)
     best = (None, -1)
-    for order in range(library.max_length):
-        context = tuple(tokens[len(tokens) - 2 - 2 * order:])
-        if len(context) < 2 + 2 * order or -1 in context:
+    for matched in range(1, min(len(history), 2 * library.max_length - 1) + 1):
+        context = tuple(history[len(history) - matched:]) + (action_token,)
+        if -1 in context:
             break
         stats = naive_context_stats(patterns, context)
         if not stats:
             break
         outcome = max(stats, key=lambda o: (stats[o][0], stats[o][1], -o))
-        best = (table.symbols(outcome), order)
+        best = (library.tokens.symbols(outcome), matched)
     return best
 
 
@@ -193,13 +200,9 @@ def test_ranked_list_starts_with_the_longest_context_ranked_like_brute_force(see
     prediction = Predictor(library, "literal", top_k=top_k).predict(past, action)
     if prediction.abstained:
         return
-    order = prediction.matched_length
     table = library.tokens
-    context = [table.find(1, action)]
-    for i in range(len(past) - 1, len(past) - 2 - order, -1):
-        context.insert(0, table.find(0, past[i][1]))
-        if i > len(past) - 1 - order:
-            context.insert(0, table.find(1, past[i][0]))
+    history = _history_tokens(library, past)
+    context = history[len(history) - prediction.matched_length:] + [table.find(1, action)]
     stats = naive_context_stats(naive.patterns, tuple(context))
     expected = sorted(stats, key=lambda o: (-stats[o][0], -stats[o][1], o))[:top_k]
     ranked = [table.find(0, observations) for observations, _ in prediction.ranked]
