@@ -95,7 +95,7 @@ def _rehash_entries(index, n_nodes):
             e = index.next[e]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def find_entry(index, node, outcome):
     """The entry of ``outcome`` after the context at ``node``, or -1."""
     key = pair_key(node, outcome)
@@ -121,30 +121,36 @@ def _entry(index, node, outcome):
 
 
 @numba.njit(cache=True)
-def ranks_above(index, a, b):
-    """Whether entry ``a`` ranks above entry ``b``: weight, then recency, then smaller outcome."""
-    if index.weight[a] != index.weight[b]:
-        return index.weight[a] > index.weight[b]
-    if index.last_seen[a] != index.last_seen[b]:
-        return index.last_seen[a] > index.last_seen[b]
-    return index.outcome[a] < index.outcome[b]
-
-
-@numba.njit(cache=True)
 def add_entry(index, node, outcome, delta, last_seen):
     """Add ``delta`` to the weight of ``outcome`` after the context at ``node``."""
+    _credit(index, index.weight, index.last_seen, index.outcome, index.total, index.best,
+            index.newest, node, outcome, delta, last_seen)
+
+
+@numba.njit(cache=True, inline="always")
+def _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome, delta, last_seen):
+    # the arrays come in as locals: reading them off the tuple in a hot loop is costly
     e = _entry(index, node, outcome)
-    index.weight[e] += delta
-    if last_seen > index.last_seen[e]:
-        index.last_seen[e] = last_seen
-    index.total[node] += delta
-    best = index.best[node]
-    if best == -1 or (best != e and ranks_above(index, e, best)):
-        index.best[node] = e
-    newest = index.newest[node]
-    if newest == -1 or index.last_seen[e] > index.last_seen[newest] or (
-            index.last_seen[e] == index.last_seen[newest] and outcome < index.outcome[newest]):
-        index.newest[node] = e
+    weight[e] += delta
+    if last_seen > seen[e]:
+        seen[e] = last_seen
+    total[node] += delta
+    b = best[node]
+    if b == -1 or (b != e and ranks_above(weight, seen, outcome_of, e, b)):
+        best[node] = e
+    w = newest[node]
+    if w == -1 or seen[e] > seen[w] or (seen[e] == seen[w] and outcome < outcome_of[w]):
+        newest[node] = e
+
+
+@numba.njit(cache=True, inline="always")
+def ranks_above(weight, seen, outcome_of, a, b):
+    """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
+    if weight[a] != weight[b]:
+        return weight[a] > weight[b]
+    if seen[a] != seen[b]:
+        return seen[a] > seen[b]
+    return outcome_of[a] < outcome_of[b]
 
 
 @numba.njit(cache=True)
@@ -158,14 +164,17 @@ def add_extension(index, tokens, length, prefix_delta, last_delta, last_seen):
     """Credit the pattern ``tokens[:length]``: ``prefix_delta`` to the contexts inside its
     prefix (one step shorter), ``last_delta`` to those ending at its last step. A new
     pattern whose prefix was counted in the same parse credits its prefix twice."""
+    trie, weight, seen, outcome_of = index.trie, index.weight, index.last_seen, index.outcome
+    total, best, newest = index.total, index.best, index.newest
     for j in range(1, length - 1, 2):
         outcome = tokens[j + 1]
         step_delta = last_delta if j == length - 2 else prefix_delta
         node = 0
         for i in range(j, -1, -1):
-            node = child_or_add(index.trie, node, tokens[i])
+            node = child_or_add(trie, node, tokens[i])
             if i < j:
-                add_entry(index, node, outcome, step_delta, last_seen)
+                _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome,
+                        step_delta, last_seen)
 
 
 @numba.njit(cache=True)

@@ -95,7 +95,7 @@ def _index_all(parent, token, keys, vals, n):
         vals[s] = node
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def child(trie, node, tok):
     """The child of ``node`` along ``tok``, or -1."""
     key = pair_key(node, tok)

@@ -184,17 +184,10 @@ def collect_steps(index, tokens, obs_pos, action, max_orders, cand):
     return n
 
 
-@numba.njit(cache=True)
-def best_outcome(index, node):
-    """``(most frequent, most recent, total weight, weight of the most frequent)`` after a context."""
-    best = index.best[node]
-    return index.outcome[best], index.outcome[index.newest[node]], index.total[node], index.weight[best]
-
-
 N_CONFIDENCE = 4
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _cell(order, total, best_w, n_buckets):
     bucket = 0
     t = total
@@ -212,86 +205,81 @@ def select(index, cand, n, cells, rule, n_buckets):
 
     Returns ``(candidate index, outcome)``.
     """
+    best, newest, outcome_of = index.best, index.newest, index.outcome
+    weight, total = index.weight, index.total
     if rule == 1:
-        best, _, _, _ = best_outcome(index, cand[n - 1])
-        return n - 1, best
+        return n - 1, outcome_of[best[cand[n - 1]]]
     chosen, outcome, chosen_acc = n - 1, -1, -1.0
     for k in range(n - 1, -1, -1):
-        best, newest, total, best_w = best_outcome(index, cand[k])
-        c = _cell(k, total, best_w, n_buckets)
+        node = cand[k]
+        b = best[node]
+        c = _cell(k, total[node], weight[b], n_buckets)
         if cells[c] > chosen_acc:
-            chosen, outcome, chosen_acc = k, best, cells[c]
+            chosen, outcome, chosen_acc = k, outcome_of[b], cells[c]
         if cells[c + 1] > chosen_acc:
-            chosen, outcome, chosen_acc = k, newest, cells[c + 1]
+            chosen, outcome, chosen_acc = k, outcome_of[newest[node]], cells[c + 1]
     return chosen, outcome
 
 
 @numba.njit(cache=True)
 def update_cells(index, cand, n, truth, cells, n_buckets, alpha):
     """Record, for every candidate's cells, whether its outcomes were ``truth``."""
+    best, newest, outcome_of = index.best, index.newest, index.outcome
+    weight, total = index.weight, index.total
     for k in range(n):
-        best, newest, total, best_w = best_outcome(index, cand[k])
-        c = _cell(k, total, best_w, n_buckets)
-        cells[c] += alpha * ((1.0 if best == truth else 0.0) - cells[c])
-        cells[c + 1] += alpha * ((1.0 if newest == truth else 0.0) - cells[c + 1])
+        node = cand[k]
+        b = best[node]
+        c = _cell(k, total[node], weight[b], n_buckets)
+        cells[c] += alpha * ((1.0 if outcome_of[b] == truth else 0.0) - cells[c])
+        cells[c + 1] += alpha * ((1.0 if outcome_of[newest[node]] == truth else 0.0) - cells[c + 1])
 
 
 @numba.njit(cache=True)
 def rank(index, cand, n, chosen, outcome, top_tok, top_score):
-    """Fill the top-k outcomes: ``outcome``, the chosen context's ranking, then the others'."""
+    """Fill the top-k outcomes: ``outcome``, the chosen context's ranking, then the others'.
+
+    Within one context outcomes keep its rank order; the index's arrays are read into
+    locals once, which keeps this loop cheap in compiled code.
+    """
+    head, nxt, outs = index.head, index.next, index.outcome
+    weight, last_seen, total = index.weight, index.last_seen, index.total
     k = len(top_tok)
-    top_tok[:] = -1
-    top_score[:] = 0.0
+    top_entry = np.empty(k, np.int64)
+    for i in range(k):
+        top_tok[i] = -1
+        top_score[i] = 0.0
+    node = cand[chosen]
     top_tok[0] = outcome
-    top_score[0] = _share(index, cand[chosen], outcome)
+    e0 = find_entry(index, node, outcome)
+    top_score[0] = 0.0 if e0 == -1 else weight[e0] / total[node]
     filled = 1
     for pass_ in range(n + 1):
         if filled >= k:
             break
-        if pass_ == 0:
-            node = cand[chosen]
-        else:
+        if pass_ > 0:
             j = n - pass_
             if j == chosen:
                 continue
             node = cand[j]
-        filled = _rank_node(index, node, top_tok, top_score, filled)
-
-
-@numba.njit(cache=True)
-def _share(index, node, outcome):
-    e = find_entry(index, node, outcome)
-    return 0.0 if e == -1 else index.weight[e] / index.total[node]
-
-
-@numba.njit(cache=True)
-def _rank_node(index, node, top_tok, top_score, filled):
-    """Append the node's best outcomes not yet listed, in rank order, in one scan."""
-    k = len(top_tok)
-    start = filled
-    e = index.head[node]
-    while e != -1:
-        o = index.outcome[e]
-        taken = False
-        for i in range(filled):
-            if top_tok[i] == o:
-                taken = True
-                break
-        if not taken:
-            # insertion into the node's own sorted run top_tok[start:filled]
-            pos = filled
-            while pos > start and ranks_above(index, e, find_entry(index, node, top_tok[pos - 1])):
-                pos -= 1
-            if pos < k:
-                last = min(filled, k - 1)
-                for i in range(last, pos, -1):
-                    top_tok[i] = top_tok[i - 1]
-                    top_score[i] = top_score[i - 1]
-                top_tok[pos] = o
-                top_score[pos] = index.weight[e] / index.total[node]
-                filled = min(filled + 1, k)
-        e = index.next[e]
-    return filled
+        start = filled
+        e = head[node]
+        while e != -1:
+            o = outs[e]
+            taken = False
+            for i in range(filled):
+                if top_tok[i] == o:
+                    taken = True
+                    break
+            if not taken:
+                pos = filled
+                while pos > start and ranks_above(weight, last_seen, outs, e, top_entry[pos - 1]):
+                    pos -= 1
+                if pos < k:
+                    for i in range(min(filled, k - 1), pos, -1):
+                        top_tok[i], top_score[i], top_entry[i] = top_tok[i - 1], top_score[i - 1], top_entry[i - 1]
+                    top_tok[pos], top_score[pos], top_entry[pos] = o, weight[e] / total[node], e
+                    filled = min(filled + 1, k)
+            e = nxt[e]
 
 
 @numba.njit(cache=True)
