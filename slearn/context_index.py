@@ -120,16 +120,12 @@ def _entry(index, node, outcome):
     return e
 
 
-@numba.njit(cache=True)
-def add_entry(index, node, outcome, delta, last_seen):
-    """Add ``delta`` to the weight of ``outcome`` after the context at ``node``."""
-    _credit(index, index.weight, index.last_seen, index.outcome, index.total, index.best,
-            index.newest, node, outcome, delta, last_seen)
-
-
 @numba.njit(cache=True, inline="always")
 def _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome, delta, last_seen):
-    # the arrays come in as locals: reading them off the tuple in a hot loop is costly
+    """Add ``delta`` to the weight of ``outcome`` after the context at ``node``.
+
+    The arrays come in as locals: reading them off the tuple inside a hot loop is costly.
+    """
     e = _entry(index, node, outcome)
     weight[e] += delta
     if last_seen > seen[e]:
