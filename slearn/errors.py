@@ -11,6 +11,10 @@ class SlearnError(Exception):
     exit_code = 1
 
 
+class ParameterError(SlearnError, ValueError):
+    """A parameter of the core (a length, a bound, a scoring rule) is out of its range."""
+
+
 class InputError(SlearnError):
     """A file, channel, field or option the user gave cannot be used."""
 

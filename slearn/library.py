@@ -1,421 +1,413 @@
-"""The pattern library and S-learning's learning rule (paper section II, Fig. 1a).
+"""The pattern library: every occurrence of every context, and the weights that read it.
 
-From the current anchor (an observation), the longest library pattern matching the head
-of the stream is found; its count is incremented and its recency reset (``last_seen`` set
-to the current step); it is extended by the next step into a new pattern (count 1); the
-next parse starts at the boundary, so consecutive patterns share it::
+S-learning (Rohrer & Hulet) keeps a library of observed runs of events, each with a count
+and a recency, and predicts from the runs that contain the recent history. This library
+stores, for every observation of every view (:mod:`slearn.views`), all the contexts of up
+to ``max_length`` steps before it, with how often each outcome followed each context
+(every occurrence, not only those at a parse boundary), when it last did, and how often
+since the view's current epoch (:mod:`slearn.context_tree`). A context and one of its
+outcomes is a pattern: the run of events ``context + outcome`` with its count and
+recency. The weights of :mod:`slearn.mixer` decide which context speaks; learning trains
+them (:mod:`slearn.online`), so a library learned offline predicts with its full scoring.
 
-    3 R 4 R 5 L 4 R 5 L 4 L 3 L 2   ->   3 R 4 | 4 R 5 | 5 L 4 | 4 R 5 L 4 | 4 L 3 | 3 L 2
+The paper's literal rule (counting only at parse boundaries, the longest match first)
+is :mod:`slearn.literal`.
 
-Patterns live in a trie of tokens (see :mod:`slearn.tokens`): a pattern of ``m`` steps
-is the trie node at depth ``2m + 1`` reached by ``O A O ... O``; its ``count`` is positive.
-The library is prefix-closed, so the longest match grows one step at a time. A pattern
-that reached ``max_length`` steps is counted but not extended, and the parse restarts at
-its last observation. Forgetting (``max_patterns``) drops the rarest, oldest patterns
-that have no extensions until the library is back to 90 % of the bound.
+Counts and recency merge exactly: learning two sets of episodes separately and
+merging (:func:`merge`) gives the counts and recency of learning them in one run, in
+that order. The scoring state (weights, detectors, fresh counts) follows the documented
+rule of :func:`merge`. ``max_patterns`` bounds memory by forgetting the rarest, oldest
+patterns (and contexts left without any) when the bound is reached, down to 90 % of it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator
 
 import numba
 import numpy as np
 
-from slearn import context_index, hashtrie
-from slearn.context_index import ContextIndex
-from slearn.hashtrie import child, child_or_add, path_tokens
+from slearn import context_tree, views
+from slearn.hashtable import rebuild
+from slearn.context_tree import Tree
+from slearn.errors import ParameterError
+from slearn.mixer import Mixer, new_mixer, with_views
+from slearn.online import Reports, Run, new_reports, run_codes
 from slearn.stream import Episode
-from slearn.tokens import TokenTable
+from slearn.tokens import ACTION, OBSERVATION, TokenTable
+from slearn.views import NO_VIEW, StepCodes, ViewState
+from slearn.vocabulary import OBSERVATION as OBSERVATION_ROLE
+from slearn.vocabulary import Vocabulary
 
-DEFAULT_MAX_LENGTH = 5
-"""Steps per pattern at most: the paper capped patterns at five movement events."""
+DEFAULT_MAX_LENGTH = 6
+"""Steps of history a context spans at most (an action and an observation each)."""
 
+MAX_MAX_LENGTH = 64
 FORGET_TO = 0.9
-_NO_BOUND = np.iinfo(np.int64).max
-_TRIE_MARGIN = 8
+JOINT = "*"
+"""The view name of a library without a vocabulary: every observation channel at once."""
 
 
 @dataclass(frozen=True)
 class Pattern:
-    """One library entry: its tokens ``O A O ... O``, count and the step it was last seen."""
+    """One pattern: a view's context (oldest token first) and the outcome after it."""
 
-    tokens: tuple[int, ...]
+    view: int
+    context: tuple[int, ...]
+    outcome: int
     count: int
     last_seen: int
-
-    @property
-    def n_steps(self) -> int:
-        """Steps after the anchor observation."""
-        return len(self.tokens) // 2
+    fresh: int
 
 
 class PatternLibrary:
-    """A growing library of observed patterns with a count and a recency each.
+    """Occurrence statistics of every context, per view, with their scoring weights.
 
     Args:
-        max_length: the longest pattern, in steps after its first observation.
-        max_patterns: forgetting bound; ``None`` keeps every pattern.
+        max_length: steps of history a context spans at most (``2 * max_length`` tokens
+            of a stream with actions, ``max_length`` of one without).
+        max_patterns: forgetting bound on patterns; ``None`` keeps every pattern.
+        vocabulary: names the channels; each observation channel becomes a view. Without
+            one, a step's observations are predicted together as one view.
+        has_actions: whether the stream has action channels (a stream without them is a
+            sequence of observations); ``None`` decides from the vocabulary, or else from
+            the first episode learned.
     """
 
-    def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, max_patterns: int | None = None) -> None:
-        if max_length < 1:
-            raise ValueError("max_length must be at least 1")
-        if max_patterns is not None and max_patterns < 16:
-            raise ValueError("max_patterns must be at least 16")
+    def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, max_patterns: int | None = None,
+                 vocabulary: Vocabulary | None = None, has_actions: bool | None = None) -> None:
+        check_parameters(max_length, max_patterns)
         self.max_length = int(max_length)
-        self.max_patterns = max_patterns
+        self.max_patterns = None if max_patterns is None else int(max_patterns)
+        self.vocabulary = vocabulary
         self.tokens = TokenTable()
-        self._clock = np.zeros(1, np.int64)
+        self.empty_action = self.tokens.intern(ACTION, ())
+        self.empty_observation = self.tokens.intern(OBSERVATION, ())
+        self.clock_array = np.zeros(1, np.int64)
         self.forgotten = 0
-        self._trie = hashtrie.new_trie(1024)
-        self._count = np.zeros(len(self._trie.parent), np.int64)
-        self._last_seen = np.zeros(len(self._trie.parent), np.int64)
-        self._n_patterns = np.zeros(1, np.int64)
-        self._index: ContextIndex | None = None
-        self._buf = np.zeros(2 * self.max_length + 3, np.int32)
-        # parse state: current match node, its length in steps, next step to learn
-        self._state = np.zeros(3, np.int64)
+        self.tree = context_tree.new_tree()
+        self.view_names: list[str] = []
+        self._has_actions = has_actions
+        if has_actions is None and vocabulary is not None:
+            self._has_actions = any(role != OBSERVATION_ROLE for role in vocabulary.roles.values())
+        self.mixer: Mixer | None = None
+        self.streams: ViewState | None = None
+        self._view_of_symbol = np.zeros(0, np.int32)
 
+    # --- shape ------------------------------------------------------------------------
     def __len__(self) -> int:
-        return int(self._n_patterns[0])
+        return int(self.tree.size[1])
 
     @property
     def clock(self) -> int:
         """Steps learned so far: the time base of ``last_seen``."""
-        return int(self._clock[0])
+        return int(self.clock_array[0])
 
-    # learning -------------------------------------------------------------------------
-    def learn(self, episode: Episode) -> None:
-        """Learn one whole episode (its own parse: episodes are never glued together)."""
-        self.learn_tokens(self.tokens.tokenize(episode))
+    @property
+    def has_actions(self) -> bool:
+        return bool(self._has_actions)
 
-    def learn_tokens(self, tokens: np.ndarray) -> None:
-        """Learn one episode given as tokens ``O A O ... O`` of this library's table."""
-        if len(tokens) == 0:
+    @property
+    def max_context(self) -> int:
+        """Tokens a context holds at most."""
+        return 2 * self.max_length if self._has_actions else self.max_length
+
+    @property
+    def factored(self) -> bool:
+        """Whether each observation channel is a view of its own."""
+        return self.vocabulary is not None
+
+    # --- views ------------------------------------------------------------------------
+    def _factored_mapping(self) -> np.ndarray:
+        """The view of every symbol of the vocabulary (``NO_VIEW`` for actions)."""
+        if len(self._view_of_symbol) == len(self.vocabulary):
+            return self._view_of_symbol
+        names = [c for c, role in self.vocabulary.roles.items() if role == OBSERVATION_ROLE]
+        self._ensure_views(names)
+        index = {name: i for i, name in enumerate(self.view_names)}
+        mapping = np.full(len(self.vocabulary), NO_VIEW, np.int32)
+        for symbol, channel, _ in self.vocabulary.items():
+            mapping[symbol] = index.get(channel, NO_VIEW)
+        self._view_of_symbol = mapping
+        return mapping
+
+    def _ensure_views(self, names: list[str]) -> None:
+        for name in names:
+            if name not in self.view_names:
+                self.view_names.append(name)
+        self._ensure_state()
+
+    def _ensure_state(self) -> None:
+        if self._has_actions is None:
             return
-        self.begin_episode(tokens)
-        while not _learn_run(*self._kernel_args(), tokens):
-            self.make_room()
-        self.end_episode()
+        n = len(self.view_names)
+        if self.mixer is None:
+            self.mixer = new_mixer(n, self.max_context)
+        self.mixer = with_views(self.mixer, n)
+        have = 0 if self.streams is None else len(self.streams.root)
+        if have < n:
+            self.tree = context_tree.ensure_room(self.tree, n - have, 0)
+            roots = [context_tree.add_root(self.tree, v) for v in range(have, n)]
+            old = self.streams
+            self.streams = views.new_view_state(n, self.max_context, np.concatenate(
+                (old.root if old is not None else np.zeros(0, np.int32), roots)))
+            if old is not None:
+                self.streams.recent[:have] = old.recent
+                self.streams.filled[:have] = old.filled
+                self.streams.held[:have] = old.held
 
-    def begin_episode(self, tokens: np.ndarray) -> None:
-        """Anchor a new parse at the first observation of an episode."""
-        self.make_room()
-        self._state[:] = (_anchor(self._trie, tokens[0]), 0, 1)
+    # --- learning and predicting ------------------------------------------------------
+    def encode(self, episode: Episode, intern: bool = True) -> StepCodes:
+        """The episode as the views see it; ``intern`` adds the tokens never seen (else
+        they are ``UNKNOWN``, and the library is left as it is)."""
+        if self._has_actions is None:
+            if not intern:
+                raise ParameterError("the library has learned nothing yet")
+            self._has_actions = bool(np.any(episode.n_actions > 0))
+        if self.vocabulary is None:
+            self._ensure_views([JOINT])
+            mapping = views.joint_mapping(episode)
+        else:
+            mapping = self._factored_mapping()
+            if episode.n_events and int(episode.symbols.max()) >= len(mapping):
+                raise ParameterError(f"symbol {int(episode.symbols.max())} is not in the "
+                                     "library's vocabulary")
+        self._ensure_state()
+        return views.encode(self.tokens, episode, mapping, intern)
 
-    def learn_next(self, action_token: int, observation_token: int) -> None:
-        """Learn one more step of the episode opened by :meth:`begin_episode` (closed loop)."""
-        args = self._kernel_args()
-        if not has_room(args[0], args[3], args[4], args[5], self.max_length, args[9]):
-            self.make_room()
-            args = self._kernel_args()
-        learn_step(*args[:7], int(action_token), int(observation_token), self.clock,
-                   self.max_length, self._buf)
-        self._clock[0] += 1
+    def learn(self, episode: Episode, new_episode: bool = True) -> None:
+        """Learn one episode (its own streams: episodes are never glued together).
 
-    def end_episode(self) -> None:
-        """Count the match still open at the end of an episode."""
-        if self._state[1] > 0:
-            _touch(self._trie, self._count, self._last_seen, self._index_or_dummy(),
-                   self._index is not None, int(self._state[0]), self.clock - 1, self._buf)
-        self._state[1] = 0
+        ``new_episode=False`` continues the previous episode (a log read in chunks).
+        """
+        self.run(self.encode(episode), learn=True, record=False, new_episode=new_episode)
 
-    def _kernel_args(self):
-        bound = _NO_BOUND if self.max_patterns is None else self.max_patterns
-        return (self._trie, self._count, self._last_seen, self._index_or_dummy(),
-                self._index is not None, self._n_patterns, self._state, self._clock,
-                self.max_length, bound, self._buf)
+    def run(self, codes: StepCodes, *, learn: bool, record: bool = True, top_k: int = 3,
+            new_episode: bool = True, streams: ViewState | None = None) -> Reports:
+        """Predict (``record``) and/or learn every step of encoded steps.
 
-    def make_room(self) -> None:
-        """Grow arrays and forget as needed between kernel calls."""
-        if self.max_patterns is not None and len(self) >= self.max_patterns:
-            self._forget()
-        if hashtrie.free_nodes(self._trie) < 64 * _TRIE_MARGIN:
-            self._grow(len(self._trie.parent))
-        if self._index is not None and context_index.free_room(self._index) < 64 * self._index_margin():
-            self._index = context_index.grow(self._index, len(self._index.outcome))
+        ``streams`` runs on other view streams than the library's own (prediction from a
+        given history); frozen runs (``learn=False``) change nothing in the library.
+        """
+        out = new_reports(codes.n_reports if record else 0, top_k)
+        if len(codes) == 0:
+            return out
+        self._ensure_state()
+        state = self.streams if streams is None else streams
+        if new_episode:
+            views.restart(state)
+        run = Run(self.has_actions, self.empty_action, self.empty_observation,
+                  self._entry_bound(), learn, record)
+        step = 0
+        while step < len(codes):
+            step = run_codes(self.tree, self.mixer, state, codes.action, codes.offsets, codes.view,
+                             codes.token, step, self.clock_array, run, out)
+            if step < len(codes):
+                self._make_room(int(codes.offsets[step + 1] - codes.offsets[step]))
+        return out
 
-    def _grow(self, min_free: int) -> None:
-        self._trie = hashtrie.grow(self._trie, min_free)
-        self._count = _resized(self._count, len(self._trie.parent))
-        self._last_seen = _resized(self._last_seen, len(self._trie.parent))
+    def _entry_bound(self) -> int:
+        return np.iinfo(np.int64).max if self.max_patterns is None else self.max_patterns
 
-    def _index_margin(self) -> int:
-        return 2 * self.max_length + 4
+    def _make_room(self, reports: int) -> None:
+        need = self.max_context * max(reports, 1)
+        if self.max_patterns is not None and len(self) + need > self.max_patterns:
+            self.forget(max(int(self.max_patterns * FORGET_TO), 0))
+        self.tree = context_tree.ensure_room(self.tree, need + 64, need + 64)
 
-    # prediction support ----------------------------------------------------------------
-    def context_index(self) -> ContextIndex:
-        """The containment index (built on first use, then kept in step with learning)."""
-        if self._index is None:
-            n = int(self._trie.size[0])
-            self._index = context_index.index_library(self._trie, self._count[:n], self._last_seen[:n],
-                                                      self.max_length)
-            self.make_room()
-        return self._index
+    # --- forgetting -------------------------------------------------------------------
+    def forget(self, keep: int) -> None:
+        """Drop the rarest, oldest patterns (longest contexts first on ties) down to ``keep``,
+        and every context left without patterns."""
+        tree = self.tree
+        n_nodes, n_entries = int(tree.size[0]), int(tree.size[1])
+        if n_entries <= keep:
+            return
+        depth = _depths(tree.parent, n_nodes)
+        owner = tree.owner[:n_entries]
+        order = np.lexsort((np.arange(n_entries), -depth[owner], tree.last_seen[:n_entries],
+                            tree.count[:n_entries]))
+        alive = np.ones(n_entries, bool)
+        alive[order[: n_entries - keep]] = False
+        self.forgotten += n_entries - keep
+        self.tree = _compacted(tree, alive, depth)
 
-    def _index_or_dummy(self) -> ContextIndex:
-        if self._index is not None:
-            return self._index
-        if not hasattr(self, "_dummy_index"):
-            self._dummy_index = context_index.new_index(16)
-        return self._dummy_index
-
-    # forgetting ----------------------------------------------------------------------
-    def _forget(self) -> None:
-        n = int(self._trie.size[0])
-        parent, count = self._trie.parent[:n], self._count[:n]
-        target = int(self.max_patterns * FORGET_TO)
-        keep_anyway = np.zeros(n, bool)
-        keep_anyway[int(self._state[0])] = True
-        while int(np.count_nonzero(count)) > target:
-            grand = parent[np.maximum(parent, 0)]
-            has_extension = np.zeros(n, bool)
-            extended = (count > 0) & (parent > 0)
-            has_extension[grand[extended]] = True
-            leaves = np.flatnonzero((count > 0) & ~has_extension & ~keep_anyway)
-            if len(leaves) == 0:
-                break
-            order = np.lexsort((leaves, self._last_seen[leaves], count[leaves]))
-            victims = leaves[order[: int(np.count_nonzero(count)) - target]]
-            count[victims] = 0
-            self.forgotten += len(victims)
-        self._compact(keep_anyway)
-
-    def _compact(self, keep_anyway: np.ndarray) -> None:
-        n = int(self._trie.size[0])
-        keep = (self._count[:n] > 0) | keep_anyway
-        keep[0] = True
-        _keep_ancestors(self._trie.parent, keep)
-        new_id = np.cumsum(keep) - 1
-        capacity = len(self._trie.parent)
-        parent = np.zeros(capacity, np.int32)
-        token = np.full(capacity, -1, np.int32)
-        kept = np.flatnonzero(keep)
-        parent[: len(kept)] = np.where(kept == 0, -1, new_id[self._trie.parent[kept]])
-        token[: len(kept)] = self._trie.token[kept]
-        self._trie = hashtrie.rebuilt(parent, token, len(kept))
-        self._count = _compacted(self._count, kept, capacity)
-        self._last_seen = _compacted(self._last_seen, kept, capacity)
-        self._n_patterns[0] = int(np.count_nonzero(self._count))
-        self._state[0] = new_id[int(self._state[0])]
-        if self._index is not None:
-            self._index = None
-            self.context_index()
-
-    # inspection and export ----------------------------------------------------------------
-    def iter_patterns(self) -> Iterator[Pattern]:
-        """Every pattern, in the order it was first recorded."""
-        n = int(self._trie.size[0])
-        for node in np.flatnonzero(self._count[:n] > 0):
-            length = path_tokens(self._trie, int(node), self._buf)
-            yield Pattern(tuple(self._buf[:length].tolist()), int(self._count[node]),
-                          int(self._last_seen[node]))
-
-    def pattern_nodes(self) -> np.ndarray:
-        """Trie node ids of all patterns, in recording order."""
-        return np.flatnonzero(self._count[: int(self._trie.size[0])] > 0)
+    # --- export -----------------------------------------------------------------------
+    def patterns(self) -> list[Pattern]:
+        """Every pattern, in the order it was first seen."""
+        data = self.export()
+        out = []
+        for i in range(len(data["count"])):
+            flat = data["pattern_tokens"][data["pattern_offsets"][i]:data["pattern_offsets"][i + 1]]
+            out.append(Pattern(int(data["view"][i]), tuple(flat[:-1].tolist()), int(flat[-1]),
+                               int(data["count"][i]), int(data["last_seen"][i]),
+                               int(data["fresh"][i])))
+        return out
 
     def export(self) -> dict[str, np.ndarray]:
-        """Patterns as flat arrays: tokens (``token_offsets``/``pattern tokens``), counts, recency."""
-        nodes = self.pattern_nodes()
-        offsets, flat = _export_paths(self._trie, nodes, 2 * self.max_length + 1)
-        return {
-            "pattern_offsets": offsets,
-            "pattern_tokens": flat,
-            "count": self._count[nodes].copy(),
-            "last_seen": self._last_seen[nodes].copy(),
-        }
+        """Patterns as flat arrays, in the order they were first seen: ``view``,
+        ``pattern_offsets``/``pattern_tokens`` (context oldest first, then the outcome),
+        ``count``, ``last_seen``, ``fresh`` (0 where the context's fresh counts belong to an
+        older epoch)."""
+        tree = self.tree
+        m = int(tree.size[1])
+        epochs = self.mixer.epoch if self.mixer is not None else np.zeros(0, np.int32)
+        offsets, flat, view, fresh = _export(tree.parent, tree.token, tree.epoch, tree.owner,
+                                             tree.outcome, tree.fresh, epochs, m,
+                                             self.max_context + 1)
+        return {"view": view, "pattern_offsets": offsets, "pattern_tokens": flat,
+                "count": tree.count[:m].copy(), "last_seen": tree.last_seen[:m].copy(),
+                "fresh": fresh}
 
     @classmethod
-    def from_export(cls, arrays: dict[str, np.ndarray], tokens: TokenTable, clock: int,
-                    max_length: int, max_patterns: int | None = None) -> "PatternLibrary":
-        """Rebuild a library from :meth:`export` output and its token table.
-
-        An optional ``arrays["pattern_parent"]`` (:meth:`pattern_parents`) makes this about
-        3x faster: a pattern is attached to its prefix pattern instead of walked from the
-        root (an entry that does not name an earlier prefix is walked, so it is only a hint).
-        """
-        library = cls(max_length, max_patterns)
+    def from_export(cls, arrays: dict[str, np.ndarray], *, tokens: TokenTable, clock: int,
+                    view_names: list[str], mixer: Mixer, max_length: int,
+                    max_patterns: int | None = None, vocabulary: Vocabulary | None = None,
+                    has_actions: bool = True) -> "PatternLibrary":
+        """Rebuild a library from :meth:`export` output, its tokens, views and weights."""
+        library = cls(max_length, max_patterns, vocabulary, has_actions)
         library.tokens = tokens
-        library._clock[0] = int(clock)
-        offsets, flat = arrays["pattern_offsets"], arrays["pattern_tokens"]
+        library.clock_array[0] = int(clock)
+        library.view_names = list(view_names)
+        library.mixer = with_views(mixer, len(view_names))
+        library._ensure_state()
+        offsets = np.asarray(arrays["pattern_offsets"], np.int64)
         n = len(offsets) - 1
-        parents = np.asarray(arrays.get("pattern_parent", np.full(n, -1)), np.int64)
-        library._trie = hashtrie.new_trie(max(1024, _node_estimate(offsets, parents)))
-        library._count = np.zeros(len(library._trie.parent), np.int64)
-        library._last_seen = np.zeros(len(library._trie.parent), np.int64)
-        nodes, done = np.zeros(n, np.int32), 0
-        while done < n:
-            done = _import_paths(library._trie, library._count, library._last_seen, offsets, flat,
-                                 parents, arrays["count"], arrays["last_seen"], nodes, done)
-            if done < n:  # a wrong hint made the estimate short
-                library._grow(max(len(library._trie.parent), int(offsets[done + 1] - offsets[done])))
-        library._n_patterns[0] = n
-        library.make_room()
+        library.tree = context_tree.ensure_room(library.tree, int(offsets[-1]) + 64, n + 64)
+        tree = library.tree
+        _import(tree.parent, tree.token, tree.first, tree.epoch, tree.node_slots, tree.owner,
+                tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next, tree.entry_slots,
+                tree.size, library.streams.root, library.mixer.epoch,
+                np.asarray(arrays["view"], np.int32), offsets,
+                np.asarray(arrays["pattern_tokens"], np.int32), np.asarray(arrays["count"], np.int64),
+                np.asarray(arrays["last_seen"], np.int64), np.asarray(arrays["fresh"], np.int64))
+        _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
+                     tree.best, tree.newest, tree.fresh_best, int(tree.size[0]))
         return library
 
-    def pattern_parents(self) -> np.ndarray:
-        """Per pattern (recording order), the index of its prefix one step shorter; -1 for
-        one-step patterns. Parents come before their extensions."""
-        nodes = self.pattern_nodes()
-        if len(nodes) == 0:
-            return np.zeros(0, np.int64)
-        prefix = self._trie.parent[self._trie.parent[nodes]]
-        index = np.minimum(np.searchsorted(nodes, prefix), len(nodes) - 1)
-        return np.where(nodes[index] == prefix, index, -1).astype(np.int64)
-
     def nbytes(self) -> int:
-        """Bytes held by the library's arrays (trie, counts, recency; not the index)."""
-        trie = self._trie
-        return sum(a.nbytes for a in (*trie[:4], self._count, self._last_seen))
-
-    def index_nbytes(self) -> int:
-        """Bytes held by the containment index (0 until prediction is used)."""
-        return 0 if self._index is None else context_index.nbytes(self._index)
+        """Bytes held by the library's arrays (tree, weights, streams; not the tokens)."""
+        extra = 0 if self.mixer is None else sum(a.nbytes for a in self.mixer)
+        extra += 0 if self.streams is None else sum(a.nbytes for a in self.streams)
+        return context_tree.nbytes(self.tree) + extra
 
 
-def _resized(array: np.ndarray, size: int) -> np.ndarray:
-    out = np.zeros(size, array.dtype)
-    out[: len(array)] = array
-    return out
+def check_parameters(max_length: int, max_patterns: int | None) -> None:
+    """Refuse parameters no library can work with, naming the limit."""
+    if isinstance(max_length, bool) or not isinstance(max_length, (int, np.integer)) \
+            or not 1 <= max_length <= MAX_MAX_LENGTH:
+        raise ParameterError(f"max_length must be an integer in 1..{MAX_MAX_LENGTH}, "
+                             f"not {max_length!r}")
+    if max_patterns is not None and (isinstance(max_patterns, bool)
+                                     or not isinstance(max_patterns, (int, np.integer))
+                                     or not 16 <= max_patterns <= 2 ** 40):
+        raise ParameterError(f"max_patterns must be an integer in 16..2**40, not {max_patterns!r}")
 
 
-def _compacted(array: np.ndarray, kept: np.ndarray, capacity: int) -> np.ndarray:
-    out = np.zeros(capacity, array.dtype)
-    out[: len(kept)] = array[kept]
+@numba.njit(cache=True)
+def _depths(parent, n):
+    depth = np.zeros(n, np.int32)
+    for node in range(n):
+        if parent[node] >= 0:
+            depth[node] = depth[parent[node]] + 1
+    return depth
+
+
+def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
+    """The tree without the dead entries and the nodes left with neither entries nor children."""
+    n_nodes, n_entries = int(tree.size[0]), int(tree.size[1])
+    keep_node = np.zeros(n_nodes, bool)
+    keep_node[tree.owner[:n_entries][alive]] = True
+    keep_node[tree.parent[:n_nodes] < 0] = True
+    _keep_ancestors(tree.parent, keep_node)
+    node_id = np.cumsum(keep_node) - 1
+    kept_nodes, kept_entries = np.flatnonzero(keep_node), np.flatnonzero(alive)
+    out = context_tree.new_tree(len(tree.parent), len(tree.owner))
+    parents = tree.parent[kept_nodes]
+    out.parent[: len(kept_nodes)] = np.where(parents < 0, -1, node_id[np.maximum(parents, 0)])
+    out.token[: len(kept_nodes)] = tree.token[kept_nodes]
+    out.epoch[: len(kept_nodes)] = tree.epoch[kept_nodes]
+    out.owner[: len(kept_entries)] = node_id[tree.owner[kept_entries]]
+    for name in ("outcome", "count", "last_seen", "fresh"):
+        getattr(out, name)[: len(kept_entries)] = getattr(tree, name)[kept_entries]
+    out.size[:] = (len(kept_nodes), len(kept_entries))
+    _link_entries(out.owner, out.first, out.next, len(kept_entries))
+    _derive_best(out.first, out.next, out.count, out.last_seen, out.fresh, out.outcome, out.best,
+                 out.newest, out.fresh_best, len(kept_nodes))
+    rebuild(out.node_slots, out.parent, out.token, 0, len(kept_nodes))
+    rebuild(out.entry_slots, out.owner, out.outcome, 0, len(kept_entries))
     return out
 
 
 @numba.njit(cache=True)
 def _keep_ancestors(parent, keep):
-    for node in range(len(keep) - 1, 0, -1):
-        if keep[node]:
+    for node in range(len(keep) - 1, -1, -1):
+        if keep[node] and parent[node] >= 0:
             keep[parent[node]] = True
 
 
 @numba.njit(cache=True)
-def _anchor(trie, obs_token):
-    return child_or_add(trie, 0, obs_token)
+def _link_entries(owner, first, nxt, m):
+    for e in range(m):  # newest-added entry first, as when learning
+        nxt[e] = first[owner[e]]
+        first[owner[e]] = e
 
 
 @numba.njit(cache=True)
-def _touch(trie, count, last_seen, index, use_index, node, clock, buf):
-    count[node] += 1
-    last_seen[node] = clock
-    if use_index:
-        length = path_tokens(trie, node, buf)
-        context_index.add_pattern(index, buf, length, 1, clock)
+def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fresh_best, n):
+    """Recompute each node's best, newest and freshest entry from the entries' numbers."""
+    for node in range(n):
+        b, w, f = -1, -1, -1
+        e = first[node]
+        while e != -1:
+            if b == -1 or count[e] > count[b] or (count[e] == count[b] and last_seen[e] > last_seen[b]):
+                b = e
+            if w == -1 or last_seen[e] > last_seen[w]:
+                w = e
+            if fresh[e] > 0 and (f == -1 or fresh[e] > fresh[f]
+                                 or (fresh[e] == fresh[f] and last_seen[e] > last_seen[f])):
+                f = e
+            e = nxt[e]
+        best[node], newest[node], fresh_best[node] = b, w, f
 
 
 @numba.njit(cache=True)
-def learn_step(trie, count, last_seen, index, use_index, n_patterns, state, a_tok, o_tok,
-               clock, max_len, buf):
-    """Learn one step ``(a_tok, o_tok)``; ``state`` holds the match node and its length."""
-    while True:
-        cur = state[0]
-        cur_len = state[1]
-        if cur_len < max_len:
-            a = child(trie, cur, a_tok)
-            if a >= 0:
-                o = child(trie, a, o_tok)
-                if o >= 0 and count[o] > 0:
-                    state[0] = o
-                    state[1] = cur_len + 1
-                    return
-        if cur_len < max_len:
-            o = child_or_add(trie, child_or_add(trie, cur, a_tok), o_tok)
-            if cur_len > 0:
-                count[cur] += 1
-                last_seen[cur] = clock
-            count[o] = 1
-            last_seen[o] = clock
-            n_patterns[0] += 1
-            if use_index:
-                # the match's contexts are credited twice (its count and the new pattern)
-                length = path_tokens(trie, o, buf)
-                context_index.add_extension(index, buf, length, 2 if cur_len > 0 else 1, 1, clock)
-            state[0] = child_or_add(trie, 0, o_tok)
-            state[1] = 0
-            return
-        _touch(trie, count, last_seen, index, use_index, cur, clock, buf)
-        state[0] = child_or_add(trie, 0, trie.token[cur])
-        state[1] = 0
-
-
-@numba.njit(cache=True)
-def has_room(trie, index, use_index, n_patterns, max_len, max_patterns):
-    """Whether one more step can be learned without growing or forgetting."""
-    if len(trie.parent) - trie.size[0] < _TRIE_MARGIN or n_patterns[0] >= max_patterns:
-        return False
-    if use_index:
-        free = min(len(index.trie.parent) - index.trie.size[0], len(index.outcome) - index.size[0])
-        if free < 2 * max_len + 4:
-            return False
-    return True
-
-
-@numba.njit(cache=True)
-def _learn_run(trie, count, last_seen, index, use_index, n_patterns, state, clock, max_len,
-               max_patterns, buf, tokens):
-    n_steps = (len(tokens) - 1) // 2
-    step = state[2]
-    while step <= n_steps:
-        if not has_room(trie, index, use_index, n_patterns, max_len, max_patterns):
-            break
-        learn_step(trie, count, last_seen, index, use_index, n_patterns, state,
-                   tokens[2 * step - 1], tokens[2 * step], clock[0], max_len, buf)
-        clock[0] += 1
-        step += 1
-    state[2] = step
-    return step > n_steps
-
-
-@numba.njit(cache=True)
-def _export_paths(trie, nodes, max_tokens):
-    offsets = np.zeros(len(nodes) + 1, np.int64)
-    flat = np.empty(len(nodes) * max_tokens, np.int32)
+def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max_tokens):
+    offsets = np.zeros(m + 1, np.int64)
+    flat = np.empty(m * max_tokens, np.int32)
+    view = np.empty(m, np.int32)
+    fresh_out = np.zeros(m, np.int64)
     pos = 0
-    for i in range(len(nodes)):
-        length = path_tokens(trie, nodes[i], flat[pos:])
-        pos += length
-        offsets[i + 1] = pos
-    return offsets, flat[:pos].copy()
+    path = np.empty(max_tokens, np.int32)
+    for e in range(m):
+        node = owner[e]
+        n = 0
+        while parent[node] >= 0:
+            path[n] = token[node]
+            n += 1
+            node = parent[node]
+        v = token[node]  # the root holds its view
+        view[e] = v
+        for i in range(n):  # the context, oldest token first
+            flat[pos + i] = path[n - 1 - i]
+        flat[pos + n] = outcome[e]
+        pos += n + 1
+        offsets[e + 1] = pos
+        if node_epoch[owner[e]] == view_epoch[v]:
+            fresh_out[e] = fresh[e]
+    return offsets, flat[:pos].copy(), view, fresh_out
 
 
 @numba.njit(cache=True)
-def _is_prefix(flat, start, end, of_start, of_end):
-    if end - start != of_end - of_start:
-        return False
-    for k in range(end - start):
-        if flat[start + k] != flat[of_start + k]:
-            return False
-    return True
-
-
-def _node_estimate(offsets: np.ndarray, parents: np.ndarray) -> int:
-    """Trie nodes needed: 2 per pattern attached to its parent, else its length (+ margin)."""
-    lengths = np.diff(offsets)
-    n = len(lengths)
-    ok = (parents >= 0) & (parents < np.arange(n))
-    ok[ok] = lengths[parents[ok]] == lengths[ok] - 2
-    return int(np.where(ok, 2, lengths).sum()) + 64 * _TRIE_MARGIN
-
-
-@numba.njit(cache=True)
-def _import_paths(trie, count, last_seen, offsets, flat, parents, counts, recency, nodes, first):
-    """Insert patterns ``first..`` and return where it stopped (all done, or the trie is full)."""
-    for i in range(first, len(offsets) - 1):
-        start, end, p = offsets[i], offsets[i + 1], parents[i]
-        node = 0
-        if 0 <= p < i and _is_prefix(flat, offsets[p], offsets[p + 1], start, end - 2):
-            node, start = nodes[p], end - 2
-        if trie.size[0] + (end - start) > len(trie.parent):
-            return i
-        for j in range(start, end):
-            node = child_or_add(trie, node, flat[j])
-        nodes[i] = node
-        count[node] = counts[i]
-        last_seen[node] = recency[i]
-    return len(offsets) - 1
+def _import(parent, token, first, node_epoch, node_slots, owner, outcome, count, last_seen, fresh,
+            nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen, fresh_in):
+    for i in range(len(offsets) - 1):
+        start, end = offsets[i], offsets[i + 1]
+        node = roots[view[i]]
+        for j in range(end - 2, start - 1, -1):  # newest context token first
+            node = context_tree.child_or_add(node_slots, parent, token, size, node, flat[j])
+            node_epoch[node] = view_epoch[view[i]]
+        e = context_tree.entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, flat[end - 1])
+        count[e] = counts[i]
+        last_seen[e] = seen[i]
+        fresh[e] = fresh_in[i]

@@ -1,114 +1,243 @@
-"""The prequential loop of the paper's simulations: predict each step, then learn it.
+"""The step loop: predict each observation from its contexts, then learn it.
 
-``learn=False`` keeps the library frozen (held-out evaluation); the predictor's adaptive
-cells still update from each outcome, as any online order selection would.
+One compiled kernel, :func:`run_codes`, walks an encoded episode (:mod:`slearn.views`)
+step by step. At each step the action is appended to every view's stream; for every
+view that reports, its contexts are looked up in the context tree, the experts of
+:mod:`slearn.mixer` propose outcomes and the best-weighted one is recorded; when
+learning, the experts' weights and the change detector are updated from the outcome
+and every context of the observation counts one more occurrence of it. ``learn=False``
+is a frozen library (held-out evaluation): nothing changes, not even the weights.
+Learning is this same loop, so a library learned offline carries the weights its
+predictions need.
+
+The kernel reads its state (tree, mixer, view streams) into locals once per call and
+stops early, before a step, when the tree could run out of room or the library reached
+its pattern bound; :class:`slearn.library.PatternLibrary` makes room and calls again.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from slearn.library import has_room, learn_step
-from slearn.predictor import Predictor, collect, rank, select, update_cells
-from slearn.stream import Episode
+from slearn.context_tree import (child, child_or_add, credit, entry_or_add, node_total,
+                                 ranks_above, refresh)
+from slearn.views import NO_TOKEN
+from slearn.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_frequency, update
 
 
-@dataclass(frozen=True)
-class OnlineResult:
-    """Per step of an episode after the first: what was predicted and whether it was right.
+class Reports(NamedTuple):
+    """Per report (a view's observation at a step): what was predicted.
 
-    Attributes:
-        predicted: predicted observation token per step, -1 where the predictor abstained.
-        actual: the observed token per step.
-        matched_length: history tokens matched (see :class:`slearn.predictor.Prediction`;
-            -1 when abstaining).
-        score: share of the winning context's weight behind the prediction.
-        top: ``(n_steps, top_k)`` ranked tokens, -1 padded.
+    ``predicted`` is the predicted observation token (-1: abstained, or no context yet),
+    ``length`` the chosen context's length in tokens (-1), ``kind`` the expert kind,
+    ``score`` the chosen context's share behind the prediction, ``truth_p`` its share
+    behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the share
+    of each in the context that ranked it, ``context`` whether the view had any history
+    at all (the first observation of an episode has none).
     """
 
-    predicted: np.ndarray
-    actual: np.ndarray
-    matched_length: np.ndarray
-    score: np.ndarray
-    top: np.ndarray
-
-    @property
-    def correct(self) -> np.ndarray:
-        return self.predicted == self.actual
-
-    @property
-    def abstained(self) -> np.ndarray:
-        return self.predicted < 0
-
-    def top_k_correct(self, k: int) -> np.ndarray:
-        """Whether the actual token is among the first ``k`` ranked."""
-        return (self.top[:, :k] == self.actual[:, None]).any(axis=1)
+    predicted: np.ndarray  # int32
+    length: np.ndarray     # int32
+    kind: np.ndarray       # int8
+    score: np.ndarray      # float64
+    truth_p: np.ndarray    # float64
+    top: np.ndarray        # int32 (reports, top_k)
+    top_p: np.ndarray      # float64 (reports, top_k)
+    context: np.ndarray    # bool
 
 
-def run_online(predictor: Predictor, episode: Episode, learn: bool = True) -> OnlineResult:
-    """Predict then (optionally) learn every step of one episode."""
-    library = predictor.library
-    tokens = library.tokens.tokenize(episode)
-    return run_online_tokens(predictor, tokens, learn)
+def new_reports(n: int, top_k: int) -> Reports:
+    """Output arrays for ``n`` reports, all abstentions."""
+    return Reports(np.full(n, -1, np.int32), np.full(n, -1, np.int32), np.full(n, -1, np.int8),
+                   np.zeros(n), np.zeros(n), np.full((n, max(top_k, 1)), -1, np.int32),
+                   np.zeros((n, max(top_k, 1))), np.zeros(n, np.bool_))
 
 
-def run_online_tokens(predictor: Predictor, tokens: np.ndarray, learn: bool = True) -> OnlineResult:
-    """:func:`run_online` on an episode already tokenized by the library's table."""
-    library = predictor.library
-    n_steps = max((len(tokens) - 1) // 2, 0)
-    out = OnlineResult(np.full(n_steps, -1, np.int32), tokens[2::2].copy(), np.full(n_steps, -1, np.int32),
-                       np.zeros(n_steps), np.full((n_steps, predictor.top_k), -1, np.int32))
-    if n_steps == 0:
-        return out
-    library.context_index()
-    if learn:
-        library.begin_episode(tokens)
-    frozen_state = np.array([0, 0, 1], np.int64)  # a frozen library keeps its parse state
-    scoring = predictor.scoring
-    cand = np.zeros(2 * library.max_length, np.int32)
-    while True:
-        index = library.context_index()
-        args = list(library._kernel_args())
-        args[3] = index
-        if not learn:
-            args[6] = frozen_state
-        done = _online_run(*args, tokens, learn, predictor.cells, scoring.code,
-                           scoring.buckets, scoring.alpha, cand, out.predicted, out.matched_length,
-                           out.score, out.top)
-        if done:
-            break
-        library.make_room()
-    if learn:
-        library.end_episode()
-    return out
+class Run(NamedTuple):
+    """Scalars of one kernel call."""
+
+    has_actions: bool
+    empty_action: int       # the token of a step without actions
+    empty_observation: int  # a view's token before its first observation
+    max_entries: int        # stop when the tree holds this many entries (forgetting)
+    learn: bool
+    record: bool
 
 
 @numba.njit(cache=True)
-def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clock, max_len,
-                max_patterns, buf, tokens, learn, cells, rule, n_buckets, alpha, cand,
-                predicted, matched, score, top):
-    n_steps = (len(tokens) - 1) // 2
-    step = state[2]
-    top_score = np.zeros(top.shape[1])
-    while step <= n_steps:
-        if learn and not has_room(trie, index, True, n_patterns, max_len, max_patterns):
-            break
-        action, truth = tokens[2 * step - 1], tokens[2 * step]
-        n = collect(index, tokens, 2 * step - 2, action, max_len, cand)
-        if n > 0:
-            chosen, outcome = select(index, cand, n, cells, rule, n_buckets)
-            rank(index, cand, n, chosen, outcome, top[step - 1], top_score)
-            predicted[step - 1] = top[step - 1, 0]
-            matched[step - 1] = chosen + 1
-            score[step - 1] = top_score[0]
-            update_cells(index, cand, n, truth, cells, n_buckets, alpha)
+def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run, out):
+    """Run steps ``step..`` of an encoded episode; return the step it stopped before.
+
+    ``clock`` is ``int64[1]``, advanced by one per learned step.
+    """
+    parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
+    fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
+    owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
+    fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
+    weights, detector, epoch = mixer.log_weight, mixer.detector, mixer.epoch
+    recent, filled, held, root = views.recent, views.filled, views.held, views.root
+    K = recent.shape[1]
+    n_views = len(filled)
+    nodes = np.empty(K + 1, np.int32)
+    cand = np.full((K + 1, N_KINDS), -1, np.int32)
+    learn = run.learn
+    while step < len(action):
+        r0, r1 = offsets[step], offsets[step + 1]
+        need = K * (r1 - r0)
+        if learn and (len(parent) - size[0] < need or len(owner) - size[1] < need
+                      or size[1] + need > run.max_entries):
+            return step
+        a = action[step]
+        push_action = run.has_actions and (step > 0 or a != run.empty_action)
+        if push_action:
+            for v in range(n_views):
+                recent[v, filled[v] % K] = a
+                filled[v] += 1
+        for r in range(r0, r1):
+            v, x = view[r], token[r]
+            depth = min(filled[v], K)
+            if depth > 0:
+                if run.record:
+                    out.context[r] = True
+                ep = epoch[v]
+                node, n = root[v], 0
+                for k in range(1, depth + 1):
+                    t = recent[v, (filled[v] - k) % K]
+                    node = child_or_add(node_slots, parent, tok_of, size, node, t) if learn \
+                        else child(node_slots, parent, tok_of, node, t)
+                    if node < 0:
+                        break
+                    nodes[k] = node
+                    n = k
+                m = 0
+                for k in range(1, n + 1):
+                    nd = nodes[k]
+                    if first[nd] == -1:
+                        break
+                    cand[k, FREQUENT] = outcome[best[nd]]
+                    cand[k, RECENT] = outcome[newest[nd]]
+                    fb = fresh_best[nd]
+                    fresh_ok = ep > 0 and node_epoch[nd] == ep and fb != -1
+                    cand[k, FRESH] = outcome[fb] if fresh_ok else -1
+                    m = k
+                w = weights[v]
+                if run.record and m > 0:
+                    k_sel, kind = select(w, cand, m)
+                    _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
+                            count, fresh, last_seen, outcome, nodes, m)
+                if learn:
+                    update(w, cand, m, x)
+                    if detect(w, detector[v], trusted_frequency(w, cand, m), x):
+                        epoch[v] += 1
+                    ep = epoch[v]
+                    for k in range(1, n + 1):
+                        nd = nodes[k]
+                        refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
+                        e = entry_or_add(entry_slots, owner, outcome, nxt, first, size, nd, x)
+                        credit(count, last_seen, fresh, best, newest, fresh_best, e, nd, clock[0])
+            recent[v, filled[v] % K] = x
+            filled[v] += 1
+            held[v] = x
+        if push_action:
+            _hold_silent(recent, filled, held, view, r0, r1, run.empty_observation)
         if learn:
-            learn_step(trie, count, last_seen, index, True, n_patterns, state, action, truth,
-                       clock[0], max_len, buf)
             clock[0] += 1
         step += 1
-    state[2] = step
-    return step > n_steps
+    return step
+
+
+@numba.njit(cache=True, inline="always")
+def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
+    """Views that did not report after an action show their last observation again."""
+    K = recent.shape[1]
+    r = r0
+    for v in range(len(filled)):
+        if r < r1 and view[r] == v:
+            r += 1
+            continue
+        recent[v, filled[v] % K] = held[v] if held[v] != NO_TOKEN else empty_observation
+        filled[v] += 1
+
+
+@numba.njit(cache=True, inline="always")
+def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
+            outcome, nodes, m):
+    """Store the prediction of report ``r``: the outcome, its share, and the ranking."""
+    weight = fresh if kind == FRESH else count
+    total = node_total(first, nxt, weight, node)
+    out.predicted[r] = said
+    out.length[r] = length
+    out.kind[r] = kind
+    out.score[r] = _share(first, nxt, weight, outcome, node, said, total)
+    out.truth_p[r] = _share(first, nxt, weight, outcome, node, truth, total)
+    top, top_p = out.top[r], out.top_p[r]
+    top[0] = said
+    top_p[0] = out.score[r]
+    filled = 1
+    for k in range(length, 0, -1):  # the chosen context's ranking, then shorter contexts'
+        if filled >= len(top):
+            break
+        w = fresh if (kind == FRESH and k == length) else count
+        filled = _rank_into(top, top_p, filled, first[nodes[k]], nxt, w, last_seen, outcome)
+    for k in range(length + 1, m + 1):
+        if filled >= len(top):
+            break
+        filled = _rank_into(top, top_p, filled, first[nodes[k]], nxt, count, last_seen, outcome)
+
+
+@numba.njit(cache=True, inline="always")
+def _share(first, nxt, weight, outcome, node, token, total):
+    if total <= 0:
+        return 0.0
+    e = first[node]
+    while e != -1:
+        if outcome[e] == token:
+            return weight[e] / total
+        e = nxt[e]
+    return 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _rank_into(top, top_p, filled, head, nxt, weight, last_seen, outcome):
+    """Append one node's outcomes to ``top`` in rank order, skipping those already there."""
+    start = filled
+    k = len(top)
+    total = 0
+    e = head
+    while e != -1:
+        total += weight[e]
+        e = nxt[e]
+    e = head
+    while e != -1:
+        o = outcome[e]
+        taken = False
+        for i in range(filled):
+            if top[i] == o:
+                taken = True
+                break
+        if not taken and weight[e] > 0:
+            pos = filled
+            while pos > start and _ranked_before(e, top[pos - 1], head, nxt, weight, last_seen, outcome):
+                pos -= 1
+            if pos < k:
+                for i in range(min(filled, k - 1), pos, -1):
+                    top[i] = top[i - 1]
+                    top_p[i] = top_p[i - 1]
+                top[pos] = o
+                top_p[pos] = weight[e] / total
+                filled = min(filled + 1, k)
+        e = nxt[e]
+    return filled
+
+
+@numba.njit(cache=True, inline="always")
+def _ranked_before(e, other_outcome, head, nxt, weight, last_seen, outcome):
+    f = head
+    while f != -1:
+        if outcome[f] == other_outcome:
+            return ranks_above(weight, last_seen, outcome, e, f)
+        f = nxt[f]
+    return True
