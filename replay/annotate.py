@@ -175,16 +175,16 @@ def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecode
     bits = np.round(outcome.surprise_bits(), 4).tolist()
     predicted, actual = outcome.predicted.tolist(), outcome.actual.tolist()
     score, matched = np.round(outcome.score, 6).tolist(), outcome.matched_length.tolist()
-    top = outcome.top.tolist()
+    top_k = outcome.top_k.tolist()
     out = []
     for s in steps.tolist():
-        key = (predicted[s], actual[s], score[s], matched[s], tuple(top[s]))
+        key = (predicted[s], actual[s], score[s], matched[s], top_k[s])
         body = bodies.get(key)
         if body is None:
             body = bodies[key] = _encode({
                 "predicted": label(key[0]), "actual": label(key[1]), "correct": key[0] == key[1],
                 "abstained": key[0] < 0, "score": key[2], "matched_length": key[3],
-                "top": [label(t) for t in key[4] if t >= 0]})[1:]
+                "in_top_k": key[4]})[1:]
         surprise = surprises.get(bits[s])
         if surprise is None:
             surprise = surprises[bits[s]] = _encode({"bits": bits[s],

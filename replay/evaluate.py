@@ -29,28 +29,28 @@ import sys
 import time
 import warnings
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, Iterable, Iterator
 
 import numba
 import numpy as np
 
-from slearn.context_index import find_entry
 from slearn.errors import InputError, TruncatedLogWarning
 from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.literal import LiteralLibrary
 from slearn.mcap_read import ReadReport
-from slearn.online import run_online_tokens
-from slearn.predictor import Predictor, Scoring, collect
+from slearn.online import Reports
 from slearn.replay.baselines import Baselines
 from slearn.replay.metrics import (ChannelCounts, ChannelDecoder, Curve, Tally, channel_counts,
                                    channel_hits, confusions, learning_curve, nice_window,
                                    score_steps)
 from slearn.spec import Spec
 from slearn.stream import Episode
-from slearn.tokens import TokenTable
+from slearn.tokens import OBSERVATION, TokenTable, _intern
+from slearn.views import StepCodes
 from slearn.vocabulary import Vocabulary
 
-SCHEMA = "slearn.replay/1"
+SCHEMA = "slearn.replay/2"
 """Name and version of the JSON document (:meth:`Evaluation.to_dict`)."""
 
 FROZEN, ONLINE = "frozen", "online"
@@ -63,32 +63,36 @@ N_CONFUSIONS = 10
 
 @dataclass(frozen=True)
 class EpisodeOutcome:
-    """Per step of one episode (after its first observation): predictions and truth.
+    """Per step of one episode: predictions and truth, each step's observations as one tuple.
+
+    A step's tuple joins the observations of every view that reported with some history
+    (the first observation of an episode has none); the predicted tuple joins every
+    view's prediction, so a step is right when every view is. Tuples are tokens of the
+    evaluation's own step table (:attr:`Evaluation.tokens`).
 
     Attributes:
         name: the episode's name (its log's path).
-        actual: the observed token.
-        predicted: the library's prediction, -1 where it abstained.
-        top: ``(steps, top_k)`` the library's ranked guesses, -1 padded.
-        score: the share of the chosen context's weight behind the prediction.
-        matched_length: history tokens the chosen context spans (-1 abstained).
-        frequency: the frequency baseline's prediction (-1 abstained).
-        markov: the Markov baseline's prediction (-1 abstained).
-        evaluated: steps that count (their observations are not empty).
-        first_step: the episode step predicted by step 0 (1, or 0 when the episode's
-            first step carries actions).
-        truth_probability: the share of the chosen context's weight behind what happened
-            (frozen replays asked for it; else NaN: online, the library has moved on since).
+        actual: the observed step tuple.
+        predicted: the library's predicted tuple, -1 where every view abstained.
+        top_k: whether every view's observation was among its ``k`` best guesses.
+        score: the product of the views' shares behind their predictions.
+        matched_length: the longest context, in tokens, among the views' chosen ones (-1).
+        frequency, markov, persistence: the baselines' predicted tuples (-1 abstained).
+        evaluated: steps that count (some view reported with some history).
+        first_step: the episode step of index 0 (always 0; kept for annotated logs).
+        truth_probability: the product of the views' shares behind what happened (frozen
+            replays; NaN online, where the library has moved on since).
     """
 
     name: str
     actual: np.ndarray
     predicted: np.ndarray
-    top: np.ndarray
+    top_k: np.ndarray
     score: np.ndarray
     matched_length: np.ndarray
     frequency: np.ndarray
     markov: np.ndarray
+    persistence: np.ndarray
     evaluated: np.ndarray
     first_step: int
     truth_probability: np.ndarray
@@ -99,10 +103,8 @@ class EpisodeOutcome:
     def surprise_bits(self) -> np.ndarray:
         """``-log2`` of the probability the library gave what happened (floored).
 
-        The probability is the share of the chosen context's weight behind what happened
-        (0 when abstaining). Where that is not known (online, or not asked for), a wrong
-        prediction gets the share left to all other outcomes, ``1 - score``: an upper
-        bound, so the surprise is a lower bound.
+        Where that is not known (online), a wrong prediction gets the share left to all
+        other outcomes, ``1 - score``: an upper bound, so the surprise is a lower bound.
         """
         bound = np.where(self.predicted == self.actual, self.score, 1.0 - self.score)
         p = np.where(np.isnan(self.truth_probability), bound, self.truth_probability)
@@ -197,18 +199,18 @@ class Evaluation:
             schema        "slearn.replay/1"
             mode          "frozen" | "online"
             top_k, window ranked guesses counted; steps per learning-curve window
-            scoring       the predictor's {rule, alpha, buckets, prior}
+            scoring       {rule: "adaptive" | "literal", factored}
             library       {path, format_version, patterns, max_length, max_patterns, clock}
                           or null (empty start)
             params, provenance, spec, logs, baseline_logs (when the baselines were trained)
             totals        TALLY over all logs
-            baselines     {fit: "training" | "prequential", markov_max_order}
+            baselines     {fit: "training" | "prequential", max_length}
             channels      [{channel, events, correct, abstained, accuracy,
-                            frequency_accuracy, markov_accuracy}]
+                            frequency_accuracy, markov_accuracy, persistence_accuracy}]
             episodes      [{name, steps, TALLY..., channels, truncated, read,
                             curve: [{start_step, end_step, events, accuracy,
                                      frequency_accuracy, markov_accuracy,
-                                     channel_accuracy: [per channel, in "channels" order]}]}]
+                                     persistence_accuracy, channel_accuracy: [per channel, in "channels" order]}]}]
             confusions    [{predicted, actual, count}] most frequent first,
                           "channel=value, ..." labels
             speed         {predictions, evaluation_s, predictions_per_s, total_s}
@@ -216,7 +218,9 @@ class Evaluation:
 
         ``TALLY`` is ``events, correct, abstained, accuracy, abstention_rate,
         accuracy_when_predicting, top_k_correct, top_k_accuracy, baselines: {frequency,
-        markov: {correct, abstained, accuracy, lift_points}}``. ``slearn replay --json``
+        markov, persistence: {correct, abstained, accuracy, lift_points}}``. Accuracy is
+        whole-step accuracy (every view right); ``channels`` gives each channel's own.
+        ``slearn replay --json``
         adds ``outputs`` (``plot``, ``report``, ``annotated``: the files written).
         New keys may appear within a version; renamed or removed keys bump it.
         """
@@ -228,7 +232,7 @@ class Evaluation:
             "scoring": self.scoring,
             **self.setup,
             "totals": self.totals.to_dict(),
-            "baselines": {"fit": self.baseline_fit, "markov_max_order": self.baseline_order},
+            "baselines": {"fit": self.baseline_fit, "max_length": self.baseline_order},
             "channels": self.channels.to_list(),
             "episodes": [e.to_dict() for e in self.episodes],
             "confusions": [{"predicted": p, "actual": a, "count": c} for p, a, c in self.confusions],
@@ -246,85 +250,132 @@ def _finite(x: float) -> float | None:
 
 # --- the core -------------------------------------------------------------------------
 
-def iter_evaluation(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, ReadReport | None]],
+def iter_evaluation(library: PatternLibrary | LiteralLibrary,
+                    episodes: Iterable[tuple[str, Episode, ReadReport | None]],
                     vocabulary: Vocabulary, *, online: bool = False, top_k: int = 3,
-                    scoring: Scoring | str = "adaptive", window: int | None = None,
-                    baselines: Baselines | None = None, baselines_learn: bool = True,
-                    truth_probability: bool = False) -> Iterator[Checkpoint]:
+                    window: int | None = None, baselines: Baselines | None = None,
+                    baselines_learn: bool = True, steps: TokenTable | None = None
+                    ) -> Iterator[Checkpoint]:
     """Predict every observation of every episode; yield a :class:`Checkpoint` per episode.
 
     Args:
         library: the pattern library; it learns only when ``online``.
         episodes: ``(name, episode, read report or None)``, symbols of ``vocabulary``.
         vocabulary: names the symbols (for the per-channel scores).
-        online: learn each step after predicting it (prequential); else frozen.
+        online: learn each step after predicting it (prequential); else frozen: nothing
+            in the library changes, not even its scoring weights.
         top_k: how many ranked guesses count for the top-k accuracy.
-        scoring: the predictor's scoring rule.
         window: steps per learning-curve window (default: about 50 over the first episode).
         baselines: the baselines to run beside the library (default: fresh, of the
-            library's order).
+            library's shape).
         baselines_learn: whether the baselines count each step after predicting it.
-        truth_probability: in a frozen replay, also compute the probability the library
-            gave what happened (for surprise; about 10 % more time), else NaN.
+        steps: the table the step tuples are interned in (default: a new one).
     """
-    predictor = Predictor(library, scoring, top_k)
-    baselines = baselines if baselines is not None else Baselines(library.max_length - 1)
-    decoder = ChannelDecoder(library.tokens, vocabulary)
+    baselines = baselines if baselines is not None else Baselines(library)
+    steps = steps if steps is not None else TokenTable()
+    decoder = ChannelDecoder(steps, vocabulary)
     totals, predictions, elapsed = Tally(), 0, 0.0
     for name, episode, report in episodes:
         started = time.perf_counter()
-        outcome = _predict_episode(name, episode, predictor, baselines, online, baselines_learn,
-                                   truth_probability)
+        outcome = _predict_episode(name, episode, library, baselines, online, baselines_learn,
+                                   top_k, steps)
         if window is None and len(outcome):
             window = nice_window(len(outcome))
         summary = _summarize(outcome, decoder, window or 1, report)
         elapsed += time.perf_counter() - started
         totals += summary.tally
-        predictions += len(outcome)
+        predictions += int(np.count_nonzero(outcome.evaluated))
         yield Checkpoint(summary, outcome, copy.copy(totals), predictions, elapsed)
 
 
-def _predict_episode(name: str, episode: Episode, predictor: Predictor, baselines: Baselines,
-                     online: bool, baselines_learn: bool, truth_probability: bool) -> EpisodeOutcome:
-    tokens = predictor.library.tokens.tokenize(episode)
-    result = run_online_tokens(predictor, tokens, learn=online)
-    guesses = baselines.run_tokens(tokens, learn=baselines_learn)
-    offsets = predictor.library.tokens.arrays.offsets
-    evaluated = offsets[result.actual + 1] > offsets[result.actual]
-    first_step = 0 if len(episode) and episode.n_actions[0] > 0 else 1
-    if online or not truth_probability:
-        truth = np.full(len(result.actual), np.nan)
-    else:
-        library = predictor.library
-        truth = _truth_probability(library.context_index(), tokens, result.matched_length,
-                                   library.max_length)
-    return EpisodeOutcome(name, result.actual, result.predicted, result.top, result.score,
-                          result.matched_length, guesses.frequency, guesses.markov, evaluated,
-                          first_step, truth)
+def _predict_episode(name: str, episode: Episode, library, baselines: Baselines, online: bool,
+                     baselines_learn: bool, top_k: int, steps: TokenTable) -> EpisodeOutcome:
+    codes = library.encode(episode)
+    reports = library.run(codes, learn=online, record=True, top_k=top_k)
+    guesses = baselines.run(codes, learn=baselines_learn)
+    return _joined(name, codes, reports, guesses, library.tokens, steps, online)
+
+
+def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tokens: TokenTable,
+            steps: TokenTable, online: bool) -> EpisodeOutcome:
+    """Per step, the tuples of what every view saw, was predicted and the baselines said."""
+    use = reports.context
+    columns = (codes.token, reports.predicted, guesses.frequency, guesses.markov, guesses.persistence)
+    sizes = np.diff(tokens.arrays.offsets[: len(tokens) + 1])
+    symbols = sum(int(sizes[c[use & (c >= 0)]].sum()) for c in columns)
+    per_step = int(np.max(np.add.reduceat(np.where(use, sizes.max(initial=1), 0),
+                                          codes.offsets[:-1].clip(max=max(len(use) - 1, 0)))))\
+        if len(use) else 1
+    steps.reserve(len(columns) * len(codes) + 1, symbols + 1)
+    offsets = codes.offsets
+    table, lib = steps.arrays, tokens.arrays
+    buf = np.empty(max(per_step, 1), np.int32)
+
+    def join(column: np.ndarray) -> np.ndarray:
+        return _join_steps(table, lib, offsets, column, use, buf)
+
+    actual = join(codes.token)
+    evaluated = actual >= 0
+    hit_top = (reports.top == codes.token[:, None]).any(axis=1) | ~use
+    top_k = np.logical_and.reduceat(hit_top, offsets[:-1].clip(max=max(len(hit_top) - 1, 0))) \
+        if len(hit_top) else np.zeros(len(codes), bool)
+    top_k = top_k & evaluated
+    score = _step_product(offsets, reports.score, use)
+    truth = np.full(len(codes), np.nan) if online else _step_product(offsets, reports.truth_p, use)
+    length = _step_max(offsets, reports.length, use)
+    return EpisodeOutcome(name, actual, join(reports.predicted), top_k, score, length,
+                          join(guesses.frequency), join(guesses.markov), join(guesses.persistence),
+                          evaluated, 0, truth)
 
 
 @numba.njit(cache=True)
-def _truth_probability(index, tokens, matched, max_length):
-    """Per step, the share of the chosen context's weight behind the observed token."""
-    out = np.zeros(len(matched))
-    cand = np.zeros(2 * max_length, np.int32)
-    for step in range(1, len(matched) + 1):
-        if matched[step - 1] < 0:
+def _join_steps(table, lib, offsets, tokens, use, buf):
+    """Per step, the token of the joined symbols of its used reports: -2 with none used,
+    -1 when every used report abstained (a partial prediction joins what was said)."""
+    out = np.full(len(offsets) - 1, -2, np.int32)
+    for s in range(len(offsets) - 1):
+        m = 0
+        used = 0
+        said = 0
+        for r in range(offsets[s], offsets[s + 1]):
+            if not use[r]:
+                continue
+            used += 1
+            t = tokens[r]
+            if t < 0:
+                continue
+            said += 1
+            for i in range(lib.offsets[t], lib.offsets[t + 1]):
+                buf[m] = lib.symbols[i]
+                m += 1
+        if used == 0:
             continue
-        obs_pos = 2 * step - 2
-        collect(index, tokens, obs_pos, tokens[obs_pos + 1], max_length, cand)
-        node = cand[matched[step - 1] - 1]
-        e = find_entry(index, node, tokens[obs_pos + 2])
-        if e >= 0:
-            out[step - 1] = index.weight[e] / index.total[node]
+        out[s] = -1 if said == 0 else _intern(table, OBSERVATION, buf, 0, m)
     return out
+
+
+def _step_product(offsets: np.ndarray, values: np.ndarray, use: np.ndarray) -> np.ndarray:
+    logs = np.where(use, np.log(np.maximum(values, 1e-300)), 0.0)
+    summed = np.add.reduceat(logs, offsets[:-1].clip(max=max(len(logs) - 1, 0))) if len(logs) \
+        else np.zeros(len(offsets) - 1)
+    summed[np.diff(offsets) == 0] = 0.0
+    return np.exp(summed)
+
+
+def _step_max(offsets: np.ndarray, values: np.ndarray, use: np.ndarray) -> np.ndarray:
+    if not len(values):
+        return np.full(len(offsets) - 1, -1, np.int32)
+    out = np.maximum.reduceat(np.where(use, values, -1), offsets[:-1].clip(max=len(values) - 1))
+    out[np.diff(offsets) == 0] = -1
+    return out.astype(np.int32)
 
 
 def _summarize(outcome: EpisodeOutcome, decoder: ChannelDecoder, window: int,
                report: ReadReport | None) -> EpisodeSummary:
     o = outcome
-    scores = score_steps(o.predicted, o.actual, o.top, o.frequency, o.markov, o.evaluated)
-    hits = channel_hits(decoder, o.predicted, o.actual, o.frequency, o.markov)
+    scores = score_steps(o.predicted, o.actual, o.top_k, o.frequency, o.markov, o.persistence,
+                         o.evaluated)
+    hits = channel_hits(decoder, o.predicted, o.actual, o.frequency, o.markov, o.persistence)
     hits = {k: v & o.evaluated[:, None] for k, v in hits.items()}
     truncated = bool(report is not None and report.truncated)
     return EpisodeSummary(o.name, len(o), scores.tally(), channel_counts(decoder.channels, hits),
@@ -332,33 +383,35 @@ def _summarize(outcome: EpisodeOutcome, decoder: ChannelDecoder, window: int,
                           report.describe() if report is not None else None)
 
 
-def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, ReadReport | None]],
+def evaluate(library: PatternLibrary | LiteralLibrary,
+             episodes: Iterable[tuple[str, Episode, ReadReport | None]],
              vocabulary: Vocabulary, *, online: bool = False, top_k: int = 3,
-             scoring: Scoring | str = "adaptive", window: int | None = None,
-             baselines: Baselines | None = None, baseline_fit: str | None = None,
-             keep_outcomes: bool = False, progress: bool = False) -> Evaluation:
+             window: int | None = None, baselines: Baselines | None = None,
+             baseline_fit: str | None = None, keep_outcomes: bool = False,
+             progress: bool = False) -> Evaluation:
     """Run :func:`iter_evaluation` to the end and collect an :class:`Evaluation`.
 
     Args:
         baselines: baselines already counted on the training data (``baseline_fit``
             ``"training"``); ``None`` starts them empty and lets them learn as they go.
         baseline_fit: how ``baselines`` were fitted (default from whether they were given).
-        keep_outcomes: keep every episode's per-step predictions, with the probability of
-            what happened in a frozen replay (for annotated logs).
+        keep_outcomes: keep every episode's per-step predictions (for annotated logs).
         progress: one line per episode on stderr.
 
     The other arguments are those of :func:`iter_evaluation`.
     """
     fit = baseline_fit or (FIT_TRAINING if baselines is not None else FIT_PREQUENTIAL)
     learn = online or fit == FIT_PREQUENTIAL
-    decoder = ChannelDecoder(library.tokens, vocabulary)
+    steps = TokenTable()
+    decoder = ChannelDecoder(steps, vocabulary)
+    baselines = baselines if baselines is not None else Baselines(library)
     result = Evaluation(ONLINE if online else FROZEN, top_k, window or 0, fit,
-                        library.max_length - 1, Tally(), ChannelCounts.zeros(decoder.channels), [],
+                        baselines.max_length, Tally(), ChannelCounts.zeros(decoder.channels), [],
                         [], 0, 0.0)
     wrong: Counter = Counter()
     checkpoints = iter_evaluation(library, episodes, vocabulary, online=online, top_k=top_k,
-                                  scoring=scoring, window=window, baselines=baselines,
-                                  baselines_learn=learn, truth_probability=keep_outcomes)
+                                  window=window, baselines=baselines, baselines_learn=learn,
+                                  steps=steps)
     for point in checkpoints:
         _collect(result, point, wrong, keep_outcomes)
         if progress:
@@ -366,12 +419,9 @@ def evaluate(library: PatternLibrary, episodes: Iterable[tuple[str, Episode, Rea
     result.confusions = [(decoder.label(p), decoder.label(a), n)
                          for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
-    scoring = Scoring(scoring) if isinstance(scoring, str) else scoring
-    result.scoring = asdict(scoring)
-    if not online and scoring.rule == "adaptive":
-        result.notes.append("frozen: no pattern was learned, but the adaptive scoring still "
-                            "re-weighed its context orders from each outcome (slearn.online)")
-    result.vocabulary, result.tokens = vocabulary, library.tokens
+    result.scoring = {"rule": "literal" if isinstance(library, LiteralLibrary) else "adaptive",
+                      "factored": bool(getattr(library, "factored", False))}
+    result.vocabulary, result.tokens = vocabulary, steps
     return result
 
 
@@ -420,10 +470,9 @@ def _fit_note(fit: str, online: bool) -> str:
 
 @dataclass
 class _Setup:
-    library: PatternLibrary
+    library: PatternLibrary | LiteralLibrary
     vocabulary: Vocabulary
     spec: Spec
-    scoring: Scoring
     facts: dict[str, Any]
     training_logs: list[str]
     notes: list[str]
@@ -432,7 +481,7 @@ class _Setup:
 def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike | None = None,
                 spec: str | os.PathLike | None = None, online: bool = False, top_k: int = 3,
                 window: int | None = None, max_length: int = DEFAULT_MAX_LENGTH,
-                scoring: str | None = None, baseline_logs: Iterable[str | os.PathLike] | None = None,
+                baseline_logs: Iterable[str | os.PathLike] | None = None,
                 keep_outcomes: bool = False, progress: bool = False) -> Evaluation:
     """Evaluate a saved library (or, with ``spec`` only, an empty one) on MCAP logs.
 
@@ -446,9 +495,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         spec: a TOML spec, to start from an empty library (``online`` is then implied)
             or for a library saved without its spec.
         online: learn while replaying (prequential); else the library stays frozen.
-        top_k, window, scoring: see :func:`iter_evaluation` (``scoring`` defaults to the
-            library's own).
-        max_length: pattern length of an empty library.
+        top_k, window: see :func:`iter_evaluation`.
+        max_length: context length of an empty library.
         baseline_logs: the logs to count the baselines on (default: the library's
             training logs when its provenance names them and they are unchanged on disk).
         keep_outcomes: keep per-step predictions (for :mod:`slearn.replay.annotate`).
@@ -466,7 +514,7 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     for path in logs:
         if not os.path.isfile(path):
             raise InputError(f"{path}: no such log file")
-    setup = _open_library(library, spec, max_length, logs) if library is not None else \
+    setup = _open_library(library, spec, logs) if library is not None else \
         _empty_library(spec, max_length, logs, progress)
     online = online or library is None
     with warnings.catch_warnings():
@@ -474,8 +522,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         baselines, fit = _fit_baselines(setup, baseline_logs, progress)
         episodes = _read(logs, setup.spec, setup.vocabulary, progress)
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
-                          scoring=scoring or setup.scoring, window=window, baselines=baselines,
-                          baseline_fit=fit, keep_outcomes=keep_outcomes, progress=progress)
+                          window=window, baselines=baselines, baseline_fit=fit,
+                          keep_outcomes=keep_outcomes, progress=progress)
     result.setup = {**setup.facts, "logs": logs, "spec": setup.spec.to_dict()}
     result.notes[:0] = setup.notes
     result.spec = setup.spec
@@ -490,14 +538,7 @@ def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary,
     yield from read_episodes(paths, spec, vocabulary, progress=progress)
 
 
-def _scoring(params: dict) -> Scoring:
-    value = params.get("scoring") or "adaptive"
-    if isinstance(value, str):
-        return Scoring(value)
-    return Scoring(**{k: v for k, v in value.items() if k in ("rule", "alpha", "buckets", "prior")})
-
-
-def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None, max_length: int,
+def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
                   logs: list[str]) -> _Setup:
     from slearn.spec import load_spec
     from slearn.storage import load_library
@@ -517,13 +558,13 @@ def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None, 
                          "patterns": len(lib), "max_length": lib.max_length,
                          "max_patterns": lib.max_patterns, "clock": lib.clock},
              "params": _jsonable(loaded.params), "provenance": _jsonable(loaded.provenance)}
-    return _Setup(lib, loaded.vocabulary, spec, _scoring(loaded.params), facts,
+    return _Setup(lib, loaded.vocabulary, spec, facts,
                   _training_logs(loaded.provenance, os.path.dirname(os.fspath(path))), [])
 
 
 def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: list[str],
                    progress: bool) -> _Setup:
-    from slearn.serialize import fit_spec
+    from slearn.serialize import fit_spec, prepare_vocabulary
     from slearn.spec import load_spec
 
     if spec_path is None:
@@ -533,10 +574,11 @@ def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: l
     if not spec.fitted:
         spec = fit_spec(spec, logs, progress)
         notes.append("quantile bins were fitted on the replayed logs themselves")
-    library = PatternLibrary(max_length)
+    vocabulary = prepare_vocabulary(spec, Vocabulary())
+    library = PatternLibrary(max_length, vocabulary=vocabulary)
     facts = {"library": None, "params": {"max_length": max_length, "max_patterns": None,
                                          "scoring": "adaptive"}, "provenance": None}
-    return _Setup(library, Vocabulary(), spec, Scoring(), facts, [], notes)
+    return _Setup(library, vocabulary, spec, facts, [], notes)
 
 
 def _training_logs(provenance: dict, library_dir: str) -> list[str]:
@@ -568,11 +610,11 @@ def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | N
     paths = [os.fspath(p) for p in baseline_logs] if baseline_logs else setup.training_logs
     if not paths:
         return None, FIT_PREQUENTIAL
-    baselines = Baselines(setup.library.max_length - 1)
+    baselines = Baselines(setup.library)
     if progress:
         sys.stderr.write(f"replay: counting the baselines on {len(paths)} training log(s)\n")
     for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False):
-        baselines.learn_tokens(setup.library.tokens.tokenize(episode))
+        baselines.learn(setup.library.encode(episode))
     setup.facts["baseline_logs"] = paths
     return baselines, FIT_TRAINING
 

@@ -1,11 +1,11 @@
-"""Scoring predictions of observation tokens: counts, per channel, per window, confusions.
+"""Scoring predictions of observation tuples: counts, per channel, per window, confusions.
 
-The unit is a *predicted observation event*: a step whose observations are not empty
-(a step of actions only has nothing to predict and is skipped). A prediction is right
-when the predicted token equals the observed one; an abstention counts as wrong and is
-also counted on its own. Per channel, several observation channels of one step (one
-token) are compared channel by channel: an event of channel ``c`` is right when the
-prediction holds the same value(s) of ``c``.
+The unit is a *predicted observation event*: a step where some view reported with some
+history (a step of actions only has nothing to predict and is skipped). A prediction is
+right when the predicted tuple (every view's prediction joined) equals the observed one:
+the whole-step accuracy; an abstention counts as wrong and is also counted on its own.
+Per channel, the channels of one step are compared one by one: an event of channel ``c``
+is right when the prediction holds the same value(s) of ``c``.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from slearn.tokens import TokenTable
 from slearn.vocabulary import OBSERVATION, Vocabulary
 
 MODEL = "model"
+BASELINES = ("frequency", "markov", "persistence")
 
 
 @dataclass
@@ -31,10 +32,9 @@ class Tally:
         correct: right predictions of the library (abstentions are wrong).
         abstained: events the library made no prediction for.
         top_k: events whose observation was among the library's ``k`` best guesses.
-        frequency: right predictions of the frequency baseline.
-        markov: right predictions of the Markov baseline.
-        frequency_abstained: events the frequency baseline could not predict.
-        markov_abstained: events the Markov baseline could not predict.
+        frequency, markov, persistence: right predictions of each baseline.
+        frequency_abstained, markov_abstained, persistence_abstained: events each
+            baseline could not predict.
     """
 
     events: int = 0
@@ -43,8 +43,10 @@ class Tally:
     top_k: int = 0
     frequency: int = 0
     markov: int = 0
+    persistence: int = 0
     frequency_abstained: int = 0
     markov_abstained: int = 0
+    persistence_abstained: int = 0
 
     def __iadd__(self, other: "Tally") -> "Tally":
         for f in fields(self):
@@ -71,7 +73,7 @@ class Tally:
                                    "abstained": getattr(self, f"{name}_abstained"),
                                    "accuracy": _num(self.rate(name)),
                                    "lift_points": _num(100 * (self.accuracy - self.rate(name)))}
-                            for name in ("frequency", "markov")}
+                            for name in BASELINES}
         return out
 
 
@@ -96,8 +98,10 @@ class StepScores:
     top_k: np.ndarray
     frequency: np.ndarray
     markov: np.ndarray
+    persistence: np.ndarray
     frequency_abstained: np.ndarray
     markov_abstained: np.ndarray
+    persistence_abstained: np.ndarray
 
     def tally(self, mask: slice | np.ndarray = slice(None)) -> Tally:
         """Counts over the evaluated steps (of ``mask``)."""
@@ -107,16 +111,16 @@ class StepScores:
         return Tally(events=int(np.count_nonzero(ev)), **counts)
 
 
-_HIT_NAMES = ("correct", "abstained", "top_k", "frequency", "markov", "frequency_abstained",
-              "markov_abstained")
+_HIT_NAMES = ("correct", "abstained", "top_k", *BASELINES,
+              *(f"{name}_abstained" for name in BASELINES))
 
 
-def score_steps(predicted: np.ndarray, actual: np.ndarray, top: np.ndarray, frequency: np.ndarray,
-                markov: np.ndarray, evaluated: np.ndarray) -> StepScores:
-    """Right, wrong and abstained per step for the library and both baselines."""
-    return StepScores(evaluated, predicted == actual, predicted < 0,
-                      (top == actual[:, None]).any(axis=1), frequency == actual, markov == actual,
-                      frequency < 0, markov < 0)
+def score_steps(predicted: np.ndarray, actual: np.ndarray, top_k: np.ndarray, frequency: np.ndarray,
+                markov: np.ndarray, persistence: np.ndarray, evaluated: np.ndarray) -> StepScores:
+    """Right, wrong and abstained per step for the library and the baselines."""
+    return StepScores(evaluated, predicted == actual, predicted < 0, top_k,
+                      frequency == actual, markov == actual, persistence == actual,
+                      frequency < 0, markov < 0, persistence < 0)
 
 
 class ChannelDecoder:
@@ -179,7 +183,7 @@ class ChannelDecoder:
         return ", ".join(self.vocabulary.label(s) for s in symbols) if symbols else "(none)"
 
 
-_CHANNEL_COUNTS = ("events", "correct", "abstained", "frequency", "markov")
+_CHANNEL_COUNTS = ("events", "correct", "abstained", *BASELINES)
 
 
 @dataclass
@@ -192,6 +196,7 @@ class ChannelCounts:
     abstained: np.ndarray
     frequency: np.ndarray
     markov: np.ndarray
+    persistence: np.ndarray
 
     @classmethod
     def zeros(cls, channels: list[str]) -> "ChannelCounts":
@@ -211,13 +216,13 @@ class ChannelCounts:
             out.append({"channel": channel, "events": n, "correct": int(self.correct[i]),
                         "abstained": int(self.abstained[i]),
                         "accuracy": _ratio(self.correct[i], n),
-                        "frequency_accuracy": _ratio(self.frequency[i], n),
-                        "markov_accuracy": _ratio(self.markov[i], n)})
+                        **{f"{b}_accuracy": _ratio(getattr(self, b)[i], n) for b in BASELINES}})
         return out
 
 
 def channel_hits(decoder: ChannelDecoder, predicted: np.ndarray, actual: np.ndarray,
-                 frequency: np.ndarray, markov: np.ndarray) -> dict[str, np.ndarray]:
+                 frequency: np.ndarray, markov: np.ndarray,
+                 persistence: np.ndarray) -> dict[str, np.ndarray]:
     """``(n, n_channels)`` booleans: ``events`` (channel observed) and each predictor's hits.
 
     Columns follow ``decoder.channels`` as of this call.
@@ -225,7 +230,8 @@ def channel_hits(decoder: ChannelDecoder, predicted: np.ndarray, actual: np.ndar
     truth = decoder.split(actual)
     events = truth >= 0
     hits = {"events": events, "abstained": events & (predicted < 0)[:, None]}
-    for name, tokens in ((MODEL, predicted), ("frequency", frequency), ("markov", markov)):
+    for name, tokens in ((MODEL, predicted), ("frequency", frequency), ("markov", markov),
+                         ("persistence", persistence)):
         hits[name] = events & (decoder.split(tokens) == truth)
     return hits
 
@@ -233,8 +239,8 @@ def channel_hits(decoder: ChannelDecoder, predicted: np.ndarray, actual: np.ndar
 def channel_counts(channels: list[str], hits: dict[str, np.ndarray]) -> ChannelCounts:
     """Sum :func:`channel_hits` over steps."""
     return ChannelCounts(channels, hits["events"].sum(axis=0), hits[MODEL].sum(axis=0),
-                         hits["abstained"].sum(axis=0), hits["frequency"].sum(axis=0),
-                         hits["markov"].sum(axis=0))
+                         hits["abstained"].sum(axis=0),
+                         *(hits[name].sum(axis=0) for name in BASELINES))
 
 
 @dataclass(frozen=True)
@@ -251,6 +257,7 @@ class Curve:
     correct: np.ndarray
     frequency: np.ndarray
     markov: np.ndarray
+    persistence: np.ndarray
     channel_events: np.ndarray
     channel_correct: np.ndarray
 
@@ -266,12 +273,14 @@ class Curve:
 
     def to_list(self) -> list[dict]:
         """One dict per window, rates in [0, 1] or ``None``; ``channel_accuracy`` per channel."""
-        acc, freq, markov = self.accuracy(), self.accuracy("frequency"), self.accuracy("markov")
+        acc = self.accuracy()
+        base = {name: self.accuracy(name) for name in BASELINES}
         by_channel = self.channel_accuracy()
         return [{"start_step": int(s), "end_step": int(s) + self.window, "events": int(e),
-                 "accuracy": _num(a), "frequency_accuracy": _num(f), "markov_accuracy": _num(m),
-                 "channel_accuracy": [_num(x) for x in c]}
-                for s, e, a, f, m, c in zip(self.start, self.events, acc, freq, markov, by_channel)]
+                 "accuracy": _num(acc[i]),
+                 **{f"{name}_accuracy": _num(base[name][i]) for name in BASELINES},
+                 "channel_accuracy": [_num(x) for x in by_channel[i]]}
+                for i, (s, e) in enumerate(zip(self.start, self.events))]
 
 
 def learning_curve(scores: StepScores, hits: dict[str, np.ndarray], window: int) -> Curve:
@@ -286,7 +295,7 @@ def learning_curve(scores: StepScores, hits: dict[str, np.ndarray], window: int)
 
     return Curve(window, starts, per_window(ev), per_window(scores.correct),
                  per_window(scores.frequency), per_window(scores.markov),
-                 per_window(hits["events"]), per_window(hits[MODEL]))
+                 per_window(scores.persistence), per_window(hits["events"]), per_window(hits[MODEL]))
 
 
 def confusions(predicted: np.ndarray, actual: np.ndarray, evaluated: np.ndarray) -> Counter:

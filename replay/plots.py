@@ -65,6 +65,7 @@ def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, st
             lines.append((name if len(episodes) > 1 else "library", x, curve.accuracy(), "-"))
         if len(episodes) == 1:
             lines.append(("frequency baseline", x, curve.accuracy("frequency"), "--"))
-            lines.append((f"Markov baseline (order <= {evaluation.baseline_order})", x,
+            lines.append((f"Markov baseline (<= {evaluation.baseline_order} steps)", x,
                           curve.accuracy("markov"), ":"))
+            lines.append(("persistence baseline", x, curve.accuracy("persistence"), "-."))
     return lines

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from slearn.errors import InputError
 from slearn.replay.evaluate import Evaluation
-from slearn.replay.metrics import Tally
+from slearn.replay.metrics import BASELINES, Tally
 
 
 def _pct(x: float | None) -> str:
@@ -25,7 +25,7 @@ def _lift(points: float) -> str:
 def _summary_rows(t: Tally) -> list[tuple[str, str, str, str]]:
     """``(predictor, accuracy, abstained, lift of the library over it)`` rows."""
     rows = [("library", _pct(t.accuracy), _pct(t.rate("abstained")), "")]
-    for name in ("frequency", "markov"):
+    for name in BASELINES:
         rows.append((f"{name} baseline", _pct(t.rate(name)), _pct(t.rate(f"{name}_abstained")),
                      _lift(100 * (t.accuracy - t.rate(name)))))
     return rows
@@ -40,17 +40,17 @@ def format_table(evaluation: Evaluation) -> str:
     lines.append(f"  {'predictor':<20} {'accuracy':>10} {'abstained':>10} {'lift':>12}")
     lines += [f"  {p:<20} {a:>10} {b:>10} {c:>12}" for p, a, b, c in _summary_rows(t)]
     lines.append(f"  {'library top-' + str(e.top_k):<20} {_pct(t.rate('top_k')):>10}")
-    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'frequency':>10} {'markov':>10}"]
+    head = "".join(f" {name:>11}" for name in BASELINES)
+    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10}{head}"]
     for c in e.channels.to_list():
-        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
-                     f"{_pct(c['frequency_accuracy']):>10} {_pct(c['markov_accuracy']):>10}")
-    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10} "
-                  f"{'frequency':>10} {'markov':>10}"]
+        cells = "".join(f" {_pct(c[f'{name}_accuracy']):>11}" for name in BASELINES)
+        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10}{cells}")
+    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10}{head}"]
     for ep in e.episodes:
         mark = " (truncated)" if ep.truncated else ""
+        cells = "".join(f" {_pct(ep.tally.rate(name)):>11}" for name in BASELINES)
         lines.append(f"  {os.path.basename(ep.name) + mark:<40} {ep.tally.events:>9} "
-                     f"{_pct(ep.tally.accuracy):>10} {_pct(ep.tally.rate('abstained')):>10} "
-                     f"{_pct(ep.tally.rate('frequency')):>10} {_pct(ep.tally.rate('markov')):>10}")
+                     f"{_pct(ep.tally.accuracy):>10} {_pct(ep.tally.rate('abstained')):>10}{cells}")
     if e.confusions:
         lines += ["", "  most frequent confusions (predicted -> actual):"]
         lines += [f"  {n:>9}  {p} -> {a}" for p, a, n in e.confusions]
@@ -93,14 +93,16 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
                     + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", ""]]),
              f'<img alt="learning curves" src="data:image/png;base64,{image}">',
              "<h2>Channels</h2>",
-             _table(["channel", "events", "library", "frequency", "markov"],
-                    [[c["channel"], c["events"], _pct(c["accuracy"]), _pct(c["frequency_accuracy"]),
-                      _pct(c["markov_accuracy"])] for c in e.channels.to_list()]),
+             _table(["channel", "events", "library", *BASELINES],
+                    [[c["channel"], c["events"], _pct(c["accuracy"]),
+                      *(_pct(c[f"{name}_accuracy"]) for name in BASELINES)]
+                     for c in e.channels.to_list()]),
              "<h2>Logs</h2>",
-             _table(["log", "events", "library", "abstained", "frequency", "markov", "truncated"],
+             _table(["log", "events", "library", "abstained", *BASELINES, "truncated"],
                     [[ep.name, ep.tally.events, _pct(ep.tally.accuracy),
-                      _pct(ep.tally.rate("abstained")), _pct(ep.tally.rate("frequency")),
-                      _pct(ep.tally.rate("markov")), "yes" if ep.truncated else ""]
+                      _pct(ep.tally.rate("abstained")),
+                      *(_pct(ep.tally.rate(name)) for name in BASELINES),
+                      "yes" if ep.truncated else ""]
                      for ep in e.episodes]),
              "<h2>Most frequent confusions</h2>",
              _table(["count", "predicted", "actual"], [[n, p, a] for p, a, n in e.confusions])
@@ -116,7 +118,7 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
 def _setup(evaluation: Evaluation) -> dict:
     return {"mode": evaluation.mode, "top_k": evaluation.top_k, "window": evaluation.window,
             "scoring": evaluation.scoring,
-            "baselines": {"fit": evaluation.baseline_fit, "markov_max_order": evaluation.baseline_order},
+            "baselines": {"fit": evaluation.baseline_fit, "max_length": evaluation.baseline_order},
             **evaluation.setup}
 
 

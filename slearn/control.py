@@ -36,7 +36,7 @@ from slearn.recorders.pointer import (BIN_DEG, COMMAND_CHANNEL, COMMAND_NAMES, C
                                       FULL_TURN_DEG, MAX_ERROR_DEG, N_BINS, POSITION_CHANNEL, R,
                                       PointerConfig, PointerRun, bin_of, pointer_vocabulary,
                                       simulate)
-from slearn.tokens import ACTION, OBSERVATION
+from slearn.stream import Episode
 from slearn.vocabulary import Vocabulary
 
 SWITCHING = ("reversal", "scramble")
@@ -364,12 +364,7 @@ class SlearnAgent:
         self.plan_seconds = 0.0
         self.plans = 0
         self.warm = False
-        library.context_index()
-        library.begin_episode(np.array([self._token(OBSERVATION, label)], np.int32))
-
-    def _token(self, kind: int, value: int) -> int:
-        symbol = self.symbols.labels[value - 1] if kind == OBSERVATION else self.symbols.commands[value]
-        return self.library.tokens.intern(kind, (symbol,))
+        library.learn(Episode.from_steps([((), (symbols.labels[label - 1],))]))
 
     def act(self, goal: int) -> tuple[int, bool]:
         """The command to issue toward ``goal`` and whether it was a curious one."""
@@ -383,12 +378,12 @@ class SlearnAgent:
 
     def observe(self, command: int, label: int) -> None:
         """Learn the step just taken."""
-        self.library.learn_next(self._token(ACTION, command), self._token(OBSERVATION, label))
+        step = ((self.symbols.commands[command],), (self.symbols.labels[label - 1],))
+        self.library.learn(Episode.from_steps([step]), new_episode=False)
         self.history.append(((self.symbols.commands[command],), (self.symbols.labels[label - 1],)))
 
     def close(self) -> None:
-        """End the library's episode."""
-        self.library.end_episode()
+        """Nothing to do: every step was learned as it came."""
 
 
 class QAgent:

@@ -19,9 +19,8 @@ import numpy as np
 
 from slearn import __version__
 from slearn.library import PatternLibrary
-from slearn.online import run_online
-from slearn.predictor import Predictor
-from slearn.recorders.pointer import CONDITIONS, PointerConfig, simulate
+from slearn.literal import LiteralLibrary
+from slearn.recorders.pointer import CONDITIONS, PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.recorders.record_pointer import write_pointer_mcap
 from slearn.serialize import read_episodes
@@ -112,13 +111,12 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
             vocabulary = Vocabulary()
             (_, episode, _), = read_episodes([log_path], pointer_spec(), vocabulary)
         else:
-            episode = run.to_episode()
+            episode, vocabulary = run.to_episode(), pointer_vocabulary()
         for rule in RULES:
-            library = PatternLibrary()
-            result = run_online(Predictor(library, rule), episode)
-            curves[rule].append(windowed_percent(result.correct))
+            library, correct, abstain = predict_then_learn(rule, episode, vocabulary)
+            curves[rule].append(windowed_percent(correct))
             if rule == RULES[0]:
-                abstained.append(windowed_percent(result.abstained))
+                abstained.append(windowed_percent(abstain))
                 if first is None:
                     first = (library, vocabulary, log_path)
         ceiling.append(windowed_percent(oracle_correct(run)))
@@ -132,12 +130,22 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
     return out
 
 
+def predict_then_learn(rule: str, episode, vocabulary: Vocabulary):
+    """``(library, correct, abstained)``: each trial predicted from an empty library of
+    ``rule`` (``adaptive`` or ``literal``), then learned; per trial after the first reading."""
+    library = PatternLibrary(vocabulary=vocabulary) if rule == "adaptive" else LiteralLibrary()
+    codes = library.encode(episode)
+    reports = library.run(codes, learn=True, record=True)
+    trials = reports.context
+    return library, (reports.predicted == codes.token)[trials], (reports.predicted < 0)[trials]
+
+
 def _mean(curves: list[list[float]]) -> list[float]:
     return [round(float(x), 2) for x in np.mean(np.asarray(curves, dtype=float), axis=0)]
 
 
-def save_library_file(path: str, library: PatternLibrary, vocabulary: Vocabulary, log: Path,
-                      seed: int) -> int:
+def save_library_file(path: str, library: PatternLibrary | LiteralLibrary,
+                      vocabulary: Vocabulary, log: Path, seed: int) -> int:
     """Store a demo library like ``slearn learn`` would; return the file's size in bytes."""
     from slearn.learn import build_provenance
     from slearn.storage import save_library

@@ -1,13 +1,11 @@
 """What is in a log: header, duration, channels, counts, rates and decodable scalar fields.
 
 :func:`describe` dispatches on the file: ``.mcap`` logs are profiled here; ``.parquet``
-pattern libraries go to ``slearn.storage.describe`` (the library-storage module) once it
-exists. :func:`suggest_spec` turns log profiles into a commented TOML spec skeleton.
+pattern libraries go to :func:`slearn.library_info.describe`. :func:`suggest_spec` turns log profiles into a commented TOML spec skeleton.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable
@@ -158,14 +156,9 @@ def describe(path: str | os.PathLike) -> LogProfile | dict:
     """
     path = os.fspath(path)
     if path.endswith(".parquet"):
-        try:
-            storage = importlib.import_module("slearn.storage")
-        except ModuleNotFoundError as err:
-            if err.name != "slearn.storage":
-                raise
-            raise InputError(f"{path}: describing pattern libraries (.parquet) is not "
-                             f"available in this version of slearn") from err
-        return storage.describe(path)
+        from slearn.library_info import describe as describe_library
+
+        return describe_library(path)
     return describe_log(path)
 
 

@@ -23,7 +23,9 @@ from typing import Callable
 
 from slearn import __version__
 from slearn.errors import InputError, SpecError
+from slearn import literal
 from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.literal import LiteralLibrary
 from slearn.mcap_read import McapLog, ReadReport
 from slearn.serialize import fit_spec, read_episodes
 from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
@@ -69,7 +71,7 @@ class LearnResult:
 
 @dataclass
 class _Job:
-    library: PatternLibrary
+    library: PatternLibrary | LiteralLibrary
     vocabulary: Vocabulary
     spec: Spec
     params: dict
@@ -127,11 +129,13 @@ def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
              max_patterns: int | None, scoring: str | None, progress: bool) -> _Job:
     spec = spec if spec is not None else default_spec(paths[0])
     spec = fit_spec(spec, paths, progress)
-    try:
-        library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns)
-    except ValueError as err:
-        raise InputError(f"learner parameters: {err}") from err
-    return _Job(library, Vocabulary(), spec, {"scoring": scoring or DEFAULT_SCORING})
+    vocabulary = Vocabulary()
+    scoring = scoring or DEFAULT_SCORING
+    if scoring == "literal":
+        library = LiteralLibrary(max_length or literal.DEFAULT_MAX_LENGTH, max_patterns)
+    else:
+        library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns, vocabulary=vocabulary)
+    return _Job(library, vocabulary, spec, {"scoring": scoring})
 
 
 def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
@@ -146,10 +150,13 @@ def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
     if max_length is not None and max_length != library.max_length:
         raise InputError(f"{resume}: learned with max length {library.max_length}; "
                          f"--resume keeps it (leave out --max-length)")
+    if scoring is not None and scoring != loaded.params.get("scoring"):
+        raise InputError(f"{resume}: learned with scoring {loaded.params.get('scoring')}; "
+                         f"--resume keeps it (leave out --scoring)")
     if max_patterns is not None:
         library.max_patterns = max_patterns
-    params = {**loaded.params, "scoring": scoring or loaded.params.get("scoring", DEFAULT_SCORING)}
-    return _Job(library, loaded.vocabulary, loaded.spec or spec, params, loaded.provenance)
+    return _Job(library, loaded.vocabulary, loaded.spec or spec, dict(loaded.params),
+                loaded.provenance)
 
 
 def _check_scoring(scoring: str | None) -> None:
@@ -169,9 +176,11 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
         output: the library file (Parquet) to write.
         spec: the channel spec; ``None`` uses the pointer's for pointer logs.
         resume: a saved library to go on learning from (its spec, vocabulary, parameters).
-        max_length: longest pattern in steps (default 5); fixed when resuming.
+        max_length: steps of history a context spans (default 6; 5 for ``literal``);
+            fixed when resuming.
         max_patterns: forgetting bound (default none).
-        scoring: ``adaptive`` or ``literal``, stored for predictors.
+        scoring: ``adaptive`` (every occurrence counted, the default) or ``literal`` (the
+            paper's rule); fixed when resuming.
         overwrite: replace an existing ``output``.
         progress: show reading progress on stderr.
         on_episode: called after each log is learned with the running result (episodes,

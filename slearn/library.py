@@ -88,8 +88,6 @@ class PatternLibrary:
         self.tree = context_tree.new_tree()
         self.view_names: list[str] = []
         self._has_actions = has_actions
-        if has_actions is None and vocabulary is not None:
-            self._has_actions = any(role != OBSERVATION_ROLE for role in vocabulary.roles.values())
         self.mixer: Mixer | None = None
         self.streams: ViewState | None = None
         self._view_of_symbol = np.zeros(0, np.int32)
@@ -131,6 +129,14 @@ class PatternLibrary:
         self._view_of_symbol = mapping
         return mapping
 
+    def prepare(self) -> None:
+        """Create the views (and their weights and streams) the vocabulary calls for."""
+        if self.vocabulary is None:
+            self._ensure_views([JOINT])
+        else:
+            self._factored_mapping()
+        self._ensure_state()
+
     def _ensure_views(self, names: list[str]) -> None:
         for name in names:
             if name not in self.view_names:
@@ -157,18 +163,23 @@ class PatternLibrary:
                 self.streams.held[:have] = old.held
 
     # --- learning and predicting ------------------------------------------------------
-    def encode(self, episode: Episode, intern: bool = True) -> StepCodes:
+    def encode(self, episode: Episode, intern: bool = True,
+               unknown_views: np.ndarray | None = None) -> StepCodes:
         """The episode as the views see it; ``intern`` adds the tokens never seen (else
-        they are ``UNKNOWN``, and the library is left as it is)."""
+        they are ``UNKNOWN``, and the library is left as it is). Symbols past the
+        vocabulary are values it never saw: ``unknown_views`` gives their views, in order."""
         if self._has_actions is None:
             if not intern:
                 raise ParameterError("the library has learned nothing yet")
-            self._has_actions = bool(np.any(episode.n_actions > 0))
+            self._has_actions = bool(np.any(episode.n_actions > 0)) if self.vocabulary is None \
+                else any(role != OBSERVATION_ROLE for role in self.vocabulary.roles.values())
+        self.prepare()
         if self.vocabulary is None:
-            self._ensure_views([JOINT])
             mapping = views.joint_mapping(episode)
         else:
             mapping = self._factored_mapping()
+            if unknown_views is not None:
+                mapping = np.concatenate((mapping, np.asarray(unknown_views, np.int32)))
             if episode.n_events and int(episode.symbols.max()) >= len(mapping):
                 raise ParameterError(f"symbol {int(episode.symbols.max())} is not in the "
                                      "library's vocabulary")
@@ -183,21 +194,23 @@ class PatternLibrary:
         self.run(self.encode(episode), learn=True, record=False, new_episode=new_episode)
 
     def run(self, codes: StepCodes, *, learn: bool, record: bool = True, top_k: int = 3,
-            new_episode: bool = True, streams: ViewState | None = None) -> Reports:
+            new_episode: bool = True, streams: ViewState | None = None,
+            baselines: bool = False) -> Reports:
         """Predict (``record``) and/or learn every step of encoded steps.
 
         ``streams`` runs on other view streams than the library's own (prediction from a
         given history); frozen runs (``learn=False``) change nothing in the library.
+        ``baselines`` records the simple rules of :class:`~slearn.online.Reports` too.
         """
-        out = new_reports(codes.n_reports if record else 0, top_k)
+        out = new_reports(codes.n_reports if (record or baselines) else 0, top_k)
         if len(codes) == 0:
             return out
-        self._ensure_state()
+        self.prepare()
         state = self.streams if streams is None else streams
         if new_episode:
             views.restart(state)
         run = Run(self.has_actions, self.empty_action, self.empty_observation,
-                  self._entry_bound(), learn, record)
+                  self._entry_bound(), learn, record, baselines, new_episode)
         step = 0
         while step < len(codes):
             step = run_codes(self.tree, self.mixer, state, codes.action, codes.offsets, codes.view,
@@ -267,6 +280,8 @@ class PatternLibrary:
         """Rebuild a library from :meth:`export` output, its tokens, views and weights."""
         library = cls(max_length, max_patterns, vocabulary, has_actions)
         library.tokens = tokens
+        library.empty_action = tokens.intern(ACTION, ())
+        library.empty_observation = tokens.intern(OBSERVATION, ())
         library.clock_array[0] = int(clock)
         library.view_names = list(view_names)
         library.mixer = with_views(mixer, len(view_names))
@@ -388,8 +403,8 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
             node = parent[node]
         v = token[node]  # the root holds its view
         view[e] = v
-        for i in range(n):  # the context, oldest token first
-            flat[pos + i] = path[n - 1 - i]
+        for i in range(n):  # the context, oldest token first (the deepest node holds it)
+            flat[pos + i] = path[i]
         flat[pos + n] = outcome[e]
         pos += n + 1
         offsets[e + 1] = pos

@@ -263,6 +263,8 @@ class LiteralLibrary:
         """
         library = cls(max_length, max_patterns)
         library.tokens = tokens
+        library.empty_action = tokens.intern(ACTION, ())
+        library.empty_observation = tokens.intern(OBSERVATION, ())
         library._clock[0] = int(clock)
         offsets, flat = arrays["pattern_offsets"], arrays["pattern_tokens"]
         n = len(offsets) - 1

@@ -36,7 +36,12 @@ class Reports(NamedTuple):
     ``score`` the chosen context's share behind the prediction, ``truth_p`` its share
     behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the share
     of each in the context that ranked it, ``context`` whether the view had any history
-    at all (the first observation of an episode has none).
+    at all (the first observation of an episode has none). With ``Run.baselines``, the
+    same walk also records what three simple rules would say: ``markov`` (a
+    variable-order Markov model: the most frequent outcome of the longest context seen),
+    ``frequency`` (the most frequent outcome after the view's last observation and the
+    action, or after the last observation alone in a stream without actions) and
+    ``persistence`` (the last observation again).
     """
 
     predicted: np.ndarray  # int32
@@ -47,13 +52,17 @@ class Reports(NamedTuple):
     top: np.ndarray        # int32 (reports, top_k)
     top_p: np.ndarray      # float64 (reports, top_k)
     context: np.ndarray    # bool
+    markov: np.ndarray     # int32: the most frequent outcome of the longest context seen
+    frequency: np.ndarray  # int32: the most frequent outcome after (last observation, action)
+    persistence: np.ndarray  # int32: the view's last observation
 
 
 def new_reports(n: int, top_k: int) -> Reports:
     """Output arrays for ``n`` reports, all abstentions."""
     return Reports(np.full(n, -1, np.int32), np.full(n, -1, np.int32), np.full(n, -1, np.int8),
                    np.zeros(n), np.zeros(n), np.full((n, max(top_k, 1)), -1, np.int32),
-                   np.zeros((n, max(top_k, 1))), np.zeros(n, np.bool_))
+                   np.zeros((n, max(top_k, 1))), np.zeros(n, np.bool_), np.full(n, -1, np.int32),
+                   np.full(n, -1, np.int32), np.full(n, -1, np.int32))
 
 
 class Run(NamedTuple):
@@ -65,6 +74,8 @@ class Run(NamedTuple):
     max_entries: int        # stop when the tree holds this many entries (forgetting)
     learn: bool
     record: bool
+    baselines: bool = False
+    episode_start: bool = True  # step 0 of the codes is the first step of an episode
 
 
 @numba.njit(cache=True)
@@ -91,7 +102,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                       or size[1] + need > run.max_entries):
             return step
         a = action[step]
-        push_action = run.has_actions and (step > 0 or a != run.empty_action)
+        push_action = run.has_actions and (step > 0 or a != run.empty_action
+                                           or not run.episode_start)
         if push_action:
             for v in range(n_views):
                 recent[v, filled[v] % K] = a
@@ -100,7 +112,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
             v, x = view[r], token[r]
             depth = min(filled[v], K)
             if depth > 0:
-                if run.record:
+                if run.record or run.baselines:
                     out.context[r] = True
                 ep = epoch[v]
                 node, n = root[v], 0
@@ -124,6 +136,13 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     cand[k, FRESH] = outcome[fb] if fresh_ok else -1
                     m = k
                 w = weights[v]
+                if run.baselines:
+                    out.persistence[r] = held[v]
+                    if m > 0:
+                        out.markov[r] = cand[m, FREQUENT]
+                    order = 2 if run.has_actions else 1
+                    if m >= order:
+                        out.frequency[r] = cand[order, FREQUENT]
                 if run.record and m > 0:
                     k_sel, kind = select(w, cand, m)
                     _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,

@@ -2,7 +2,7 @@
 
 "When a new goal is presented, the S-learning algorithm searches past sequences for series
 of actions that moved the system from its current state to the desired state." The
-planner reads a transition model off the containment index (:mod:`slearn.context_index`)
+planner reads a transition model off the library's context tree (:mod:`slearn.context_tree`)
 and searches it:
 
 * **States** are short contexts: the current observation and the ``order`` steps before
@@ -11,7 +11,7 @@ and searches it:
   pending) and separates a changed world from the old one: after the pointer's command
   reversal, ``5 R 4`` is a context the library has never seen.
 * **Transitions**: for a state and a candidate action, the outcomes after the context's
-  suffixes of order 0 to ``order`` (collected as :mod:`slearn.predictor` does), blended
+  suffixes of order 0 to ``order`` (the view's contexts that start at an observation), blended
   from short to long: each level is its own counts plus ``prior`` pseudo-counts of the
   shorter level's distribution, a share ``novelty`` of which goes to *unknown*. What the
   library has never seen is unknown; a context seen often speaks for itself.
@@ -27,7 +27,8 @@ and searches it:
   after the world changes.
 
 Closed loop: call :meth:`Planner.plan` again after every observed step. The planner is
-pure (no I/O); its search runs in compiled kernels over the index's arrays.
+pure (no I/O); its search runs in compiled kernels over the tree's arrays. It plans in
+one view of the library (by default the first: the pointer's position).
 """
 
 from __future__ import annotations
@@ -40,10 +41,9 @@ from typing import Iterable, Sequence
 import numba
 import numpy as np
 
-from slearn import hashtrie
+from slearn import context_tree, hashtrie
 from slearn.hashtrie import child, child_or_add
 from slearn.library import PatternLibrary
-from slearn.predictor import collect_steps
 from slearn.stream import Step
 from slearn.tokens import ACTION, OBSERVATION
 
@@ -136,8 +136,9 @@ class Planner:
     """
 
     def __init__(self, library: PatternLibrary, actions: Iterable[Sequence[int]] | None = None,
-                 settings: PlannerSettings | None = None) -> None:
+                 settings: PlannerSettings | None = None, view: int = 0) -> None:
         self.library = library
+        self.view = view
         self.settings = settings or PlannerSettings()
         self._actions = None if actions is None else [tuple(int(s) for s in a) for a in actions]
         if self._actions is not None and not self._actions:
@@ -176,18 +177,24 @@ class Planner:
         if start is None or not len(actions):
             return self._blind(actions, action_tokens)
         s = self.settings
-        index = self.library.context_index()
+        index = (self.library.tree, self._root())
         graph = self._search_graph(index, start, action_tokens, self._goal_mask(goals))
         q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity)
         return self._plan_from(graph, q, reach, actions, action_tokens, index, start)
 
+    def _root(self) -> int:
+        self.library.prepare()
+        return int(self.library.streams.root[self.view])
+
     def _search_graph(self, index, start, action_tokens, goal_mask) -> _Graph:
         s = self.settings
+        tree, root = index
         while True:
             graph = self._graph_for(len(action_tokens))
             self._reset_states()
-            if _build(index, self._states, self._node_state, graph, start, action_tokens, goal_mask,
-                      s.order, s.prior, s.novelty, self.library.clock, s.fade_rate, s.horizon):
+            if _build(tree, root, self._states, self._node_state, graph, start, action_tokens,
+                      goal_mask, s.order, s.prior, s.novelty, self.library.clock, s.fade_rate,
+                      s.horizon):
                 return graph
             self._graph = _new_graph(s.max_states, 2 * s.order + 1, len(action_tokens), 2 * len(graph.nxt))
 
@@ -207,7 +214,7 @@ class Planner:
                     float(reach[best]), float(q[best]))
 
     def _curious(self, actions, action_tokens, index, start, value) -> Plan:
-        tried = _tried(index, start, action_tokens)
+        tried = _tried(index[0], index[1], start, action_tokens)
         j = int(np.argmin(tried))  # ties: the first candidate
         return Plan((actions[j],), ((),), 0.0, value, explore=True)
 
@@ -264,28 +271,53 @@ def _best_action(q: np.ndarray, reach: np.ndarray) -> int:
     return int(order[0])
 
 
+@numba.njit(cache=True, inline="always")
+def _child(tree, node, tok):
+    return context_tree.child(tree.node_slots, tree.parent, tree.token, node, tok)
+
+
 @numba.njit(cache=True)
-def _weights(index, node, outcomes, k, out, clock, rate):
+def _contexts(tree, root, tokens, obs_pos, action, levels, cand):
+    """Contexts that start at an observation, order 0 (no earlier step) first: the nodes of
+    ``tokens[..obs_pos] + action`` read backwards at even depths."""
+    node = _child(tree, root, action)
+    n = 0
+    i = obs_pos
+    while node >= 0 and i >= 0 and n < levels:
+        node = _child(tree, node, tokens[i])
+        if node < 0 or tree.first[node] == -1:
+            break
+        cand[n] = node
+        n += 1
+        if i == 0:
+            break
+        node = _child(tree, node, tokens[i - 1])
+        i -= 2
+    return n
+
+
+@numba.njit(cache=True)
+def _weights(tree, node, outcomes, k, out, clock, rate):
     """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``.
 
     Weights fade with the age of their newest sighting (``rate`` per step, 0 = never).
     """
     out[:k] = 0.0
     total = 0.0
-    e = index.head[node]
+    e = tree.first[node]
     while e != -1:
-        w = float(index.weight[e]) * np.exp(-rate * (clock - index.last_seen[e]))
+        w = float(tree.count[e]) * np.exp(-rate * (clock - tree.last_seen[e]))
         total += w
         for i in range(k):
-            if outcomes[i] == index.outcome[e]:
+            if outcomes[i] == tree.outcome[e]:
                 out[i] = w
-        e = index.next[e]
+        e = tree.next[e]
     return total
 
 
 @numba.njit(cache=True)
-def distribution(index, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand, outcomes,
-                 probs, work):
+def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand,
+                 outcomes, probs, work):
     """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
 
     Blends contexts of order 0 to ``levels - 1`` (see the module docstring). Fills
@@ -293,21 +325,21 @@ def distribution(index, tokens, obs_pos, action, levels, prior, novelty, clock, 
     """
     if action < 0:
         return 0, 1.0
-    n = collect_steps(index, tokens, obs_pos, action, levels, cand)
+    n = _contexts(tree, root, tokens, obs_pos, action, levels, cand)
     if n == 0:
         return 0, 1.0
     k = 0
-    e = index.head[cand[0]]
+    e = tree.first[cand[0]]
     while e != -1 and k < len(outcomes):
-        outcomes[k] = index.outcome[e]
+        outcomes[k] = tree.outcome[e]
         k += 1
-        e = index.next[e]
-    total = _weights(index, cand[0], outcomes, k, probs, clock, rate)
+        e = tree.next[e]
+    total = _weights(tree, cand[0], outcomes, k, probs, clock, rate)
     probs[:k] /= total + prior
     unknown = prior / (total + prior)
     keep = prior * (1.0 - novelty)
     for level in range(1, levels):
-        total = _weights(index, cand[level], outcomes, k, work, clock, rate) if level < n else 0.0
+        total = _weights(tree, cand[level], outcomes, k, work, clock, rate) if level < n else 0.0
         for i in range(k):
             probs[i] = (work[i] * (level < n) + keep * probs[i]) / (total + prior)
         unknown = (keep * unknown + prior * novelty) / (total + prior)
@@ -350,8 +382,8 @@ def _state_id(states, node_state, tokens, length, graph):
 
 
 @numba.njit(cache=True)
-def _build(index, states, node_state, graph, start, actions, goal_mask, order, prior, novelty, clock,
-           rate, horizon):
+def _build(tree, root, states, node_state, graph, start, actions, goal_mask, order, prior, novelty,
+           clock, rate, horizon):
     """Expand every state reachable within ``horizon`` steps from ``start`` (breadth first).
 
     Returns False when the transition arrays ran out of room (grow them and build again).
@@ -370,7 +402,7 @@ def _build(index, states, node_state, graph, start, actions, goal_mask, order, p
         for j in range(n_act):
             graph.unknown[s * n_act + j] = 0.0
             if not graph.goal[s] and graph.depth[s] < horizon:
-                if not _expand(index, states, node_state, graph, s, s * n_act + j, actions[j],
+                if not _expand(tree, root, states, node_state, graph, s, s * n_act + j, actions[j],
                                goal_mask, order, prior, novelty, clock, rate, scratch):
                     return False
             graph.offsets[s * n_act + j + 1] = graph.size[1]
@@ -379,8 +411,8 @@ def _build(index, states, node_state, graph, start, actions, goal_mask, order, p
 
 
 @numba.njit(cache=True)
-def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty, clock,
-            rate, scratch):
+def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty,
+            clock, rate, scratch):
     """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
 
     Returns False when the transition arrays are out of room.
@@ -388,8 +420,8 @@ def _expand(index, states, node_state, graph, s, sa, action, goal_mask, order, p
     cand, outcomes, probs, work, buf = scratch
     length = graph.length[s]
     levels = min(order, (length - 1) // 2) + 1
-    k, graph.unknown[sa] = distribution(index, graph.tok[s], length - 1, action, levels, prior,
-                                        novelty, clock, rate, cand, outcomes, probs, work)
+    k, graph.unknown[sa] = distribution(tree, root, graph.tok[s], length - 1, action, levels,
+                                        prior, novelty, clock, rate, cand, outcomes, probs, work)
     buf[:length] = graph.tok[s, :length]
     buf[length] = action
     keep = min(length + 2, 2 * order + 1)
@@ -483,19 +515,19 @@ def _path(graph, q, r, n_act, horizon):
 
 
 @numba.njit(cache=True)
-def _tried(index, start, actions):
+def _tried(tree, root, start, actions):
     """How often each action was taken from the current observation (order-0 weight)."""
     out = np.zeros(len(actions))
     for j in range(len(actions)):
         if actions[j] < 0:
             continue
-        node = child(index.trie, 0, actions[j])
+        node = _child(tree, root, actions[j])
         if node >= 0:
-            node = child(index.trie, node, start[len(start) - 1])
+            node = _child(tree, node, start[len(start) - 1])
         if node < 0:
             continue
-        e = index.head[node]
+        e = tree.first[node]
         while e != -1:
-            out[j] += index.weight[e]
-            e = index.next[e]
+            out[j] += tree.count[e]
+            e = tree.next[e]
     return out

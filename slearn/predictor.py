@@ -77,7 +77,13 @@ class Predictor:
 
         ``history`` is a list of ``(actions, observations)`` steps of symbols, oldest first.
         """
-        codes = self._codes(list(history) + [(tuple(actions), ())])
+        return self.predict_unknown(list(history) + [(tuple(actions), ())])
+
+    def predict_unknown(self, steps: list[Step], unknown_views: np.ndarray | None = None) -> Prediction:
+        """Predict the observations of the last step of ``steps`` (its observations are
+        ignored). Symbols past the vocabulary are values never seen; ``unknown_views``
+        gives the view of each (factored libraries)."""
+        codes = self._codes(steps, unknown_views)
         reports = self._run(codes)
         first = int(codes.offsets[-2])
         return Prediction([self._view(reports, first + v, v) for v in range(self._n_views())])
@@ -85,10 +91,14 @@ class Predictor:
     def _n_views(self) -> int:
         return len(self.library.view_names)
 
-    def _codes(self, steps: list[Step]) -> StepCodes:
+    def _codes(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         library = self.library
+        steps = steps[:-1] + [(tuple(steps[-1][0]), ())]
         episode = Episode.from_steps(steps)
-        codes = library.encode(episode, intern=False)
+        if unknown_views is not None and len(unknown_views) and library.factored:
+            codes = library.encode(episode, intern=False, unknown_views=unknown_views)
+        else:
+            codes = library.encode(episode, intern=False)
         n_views = self._n_views()
         offsets = codes.offsets.copy()
         offsets[-1] = offsets[-2] + n_views  # the last step reports every view, truth unknown

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from slearn.storage import merge_files
+from slearn.merge import merge_files
 
 
 @click.command("merge")

@@ -1,4 +1,4 @@
-"""``slearn replay``: how well a saved library predicts held-out logs, next to two baselines."""
+"""``slearn replay``: how well a saved library predicts held-out logs, next to three baselines."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import click
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
 from slearn.errors import InputError
 from slearn.library import DEFAULT_MAX_LENGTH
-from slearn.predictor import SCORINGS
 
 _MCAP_MAGIC = b"\x89MCAP"
 
@@ -38,13 +37,12 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
 @click.option("--window", type=click.IntRange(min=1), help="Steps per learning-curve window.")
 @click.option("--top-k", type=click.IntRange(min=1), default=3, show_default=True,
               help="Ranked guesses that count for the top-k accuracy.")
-@click.option("--scoring", type=click.Choice(SCORINGS), help="Override the library's scoring rule.")
 @click.option("--max-length", type=click.IntRange(min=1), default=DEFAULT_MAX_LENGTH,
-              show_default=True, help="Pattern length of an empty library (--spec).")
+              show_default=True, help="Context length (steps) of an empty library (--spec).")
 @click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
               help="Training log for the baselines (repeat; default: the library's own inputs "
                    "when still on disk).")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/1).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/2).")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the learning curves (PNG).")
 @click.option("--report", type=click.Path(dir_okay=False), help="Write a self-contained HTML report.")
 @click.option("--write-mcap", "write_mcap", type=click.Path(),
@@ -56,7 +54,7 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
-            window: int | None, top_k: int, scoring: str | None, max_length: int,
+            window: int | None, top_k: int, max_length: int,
             baseline_train: tuple[str, ...], as_json: bool, plot: str | None, report: str | None,
             write_mcap: str | None, force: bool, fail_under: float | None, quiet: bool) -> None:
     """Evaluate library LIB on held-out MCAP LOGS: slearn replay LIB LOGS...
@@ -75,7 +73,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
 
         _check_outputs(annotated_paths(logs, write_mcap), force)
     evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
-                             window=window, max_length=max_length, scoring=scoring,
+                             window=window, max_length=max_length,
                              baseline_logs=baseline_train or None,
                              keep_outcomes=write_mcap is not None, progress=not quiet)
     outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet)

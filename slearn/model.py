@@ -1,0 +1,202 @@
+"""``SequenceModel``: S-learning on plain Python sequences, without files or specs.
+
+Two forms, fixed by the first call that learns:
+
+* sequences of hashable items (``learn(seq)``, ``predict(history)``): one sequence is one
+  episode, the items one observation channel named ``item``;
+* steps of actions and observations (``learn_steps(steps)``, ``predict_step(history,
+  actions)``): a step is ``(actions, observations)``, two mappings ``{channel: value}``,
+  as the recorders produce them; each observation channel is predicted on its own.
+
+Prediction never changes the model; learning trains the counts and the scoring weights.
+Items and values the model never saw match no context: a history that ends with one
+abstains (``None``), unless the actions alone say something. Values must be hashable.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Hashable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from slearn.errors import ParameterError
+from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.literal import LiteralLibrary
+from slearn.predictor import Predictor
+from slearn.stream import Episode
+from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+
+ITEM = "item"
+SCORINGS = ("adaptive", "literal")
+Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
+
+
+class SequenceModel:
+    """Learns sequences (or steps with actions) and predicts what comes next.
+
+    Args:
+        max_length: steps of history a context spans at most.
+        scoring: ``"adaptive"`` (every occurrence counted, contexts weighed by their
+            record; the default) or ``"literal"`` (the paper's rule, ``max_length`` 5).
+        max_patterns: forget the rarest, oldest patterns beyond this many.
+    """
+
+    def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, scoring: str = "adaptive",
+                 max_patterns: int | None = None) -> None:
+        if scoring not in SCORINGS:
+            raise ParameterError(f"scoring must be one of {', '.join(SCORINGS)}, not {scoring!r}")
+        self.vocabulary = Vocabulary()
+        self.scoring = scoring
+        self._form: str | None = None
+        self._params = (max_length, max_patterns)
+        self.library: PatternLibrary | LiteralLibrary | None = None
+        self._predictor: Predictor | None = None
+
+    # --- the sequence form --------------------------------------------------------------
+    def learn(self, sequence: Iterable[Hashable]) -> None:
+        """Learn one sequence of hashable items (one episode)."""
+        self._use("sequence")
+        self.vocabulary.add_channel(ITEM, OBSERVATION)
+        symbols = [self._symbol(ITEM, item, learn=True) for item in sequence]
+        if symbols:
+            self._learn(Episode.from_steps([((), (s,)) for s in symbols]))
+
+    def predict(self, history: Sequence[Hashable]) -> Hashable | None:
+        """The most likely next item after ``history``, or ``None``."""
+        ranked = self.rank(history, k=1)
+        return ranked[0][0] if ranked else None
+
+    def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
+        """Up to ``k`` next items, best first, each with the share of its context behind it."""
+        prediction = self._query([({}, {ITEM: item}) for item in self._tail(history)], {}, k)
+        return [(value, p) for value, p in prediction.get(ITEM, [])]
+
+    def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
+        """:meth:`predict` for many histories."""
+        return [self.predict(h) for h in histories]
+
+    # --- the step form ------------------------------------------------------------------
+    def learn_steps(self, steps: Iterable[Step]) -> None:
+        """Learn one episode of ``(actions, observations)`` steps (mappings channel -> value)."""
+        self._use("steps")
+        rows = [self._step_symbols(step, learn=True) for step in steps]
+        if rows:
+            self._learn(Episode.from_steps(rows))
+
+    def predict_step(self, history: Sequence[Step], actions: Mapping[str, Hashable]) -> dict:
+        """``{channel: value}``: each observation channel's most likely next value."""
+        return {c: ranked[0][0] for c, ranked in self.rank_step(history, actions, k=1).items()
+                if ranked}
+
+    def rank_step(self, history: Sequence[Step], actions: Mapping[str, Hashable],
+                  k: int = 3) -> dict[str, list[tuple[Hashable, float]]]:
+        """Per observation channel, up to ``k`` next values with their shares, best first."""
+        self._use("steps", learning=False)
+        return self._query(list(history), actions, k)
+
+    # --- files --------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
+        """Write the model as a library file (Parquet), atomically."""
+        from slearn.storage import save_library
+
+        if self.library is None:
+            raise ParameterError("the model has learned nothing yet: nothing to save")
+        save_library(path, self.library, self.vocabulary, spec=None, params={"form": self._form},
+                     provenance={}, overwrite=overwrite)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "SequenceModel":
+        """A model saved by :meth:`save` (or any library file learned from logs)."""
+        from slearn.storage import load_library
+
+        loaded = load_library(path)
+        model = cls(loaded.library.max_length, loaded.params.get("scoring", "adaptive"),
+                    loaded.library.max_patterns)
+        model.vocabulary, model.library = loaded.vocabulary, loaded.library
+        model._form = loaded.params.get("form") or "steps"
+        return model
+
+    # --- internals ----------------------------------------------------------------------
+    def _use(self, form: str, learning: bool = True) -> None:
+        if self._form is None and learning:
+            self._form = form
+        if self._form is not None and self._form != form:
+            raise ParameterError(f"this model learned {self._form}; use the matching methods")
+
+    def _new_library(self) -> PatternLibrary | LiteralLibrary:
+        max_length, max_patterns = self._params
+        if self.scoring == "literal":
+            return LiteralLibrary(max_length, max_patterns)
+        return PatternLibrary(max_length, max_patterns, vocabulary=self.vocabulary)
+
+    def _learn(self, episode: Episode) -> None:
+        if self.library is None:
+            self.library = self._new_library()
+        self.library.learn(episode)
+        self._predictor = None
+
+    def _symbol(self, channel: str, value: Any, learn: bool) -> int:
+        try:
+            hash(value)
+        except TypeError:
+            raise ParameterError(f"{channel} value {value!r} is not hashable: use tuples, "
+                                 f"strings or numbers") from None
+        return self.vocabulary.symbol(channel, value) if learn else self.vocabulary.get_symbol(channel, value)
+
+    def _step_symbols(self, step: Step, learn: bool) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        try:
+            actions, observations = step
+        except (TypeError, ValueError):
+            raise ParameterError(f"a step is (actions, observations), two mappings; got {step!r}") from None
+        out = []
+        for role, mapping in ((ACTION, actions), (OBSERVATION, observations)):
+            if not isinstance(mapping, Mapping):
+                raise ParameterError(f"step {role}s must be a mapping channel -> value, not {mapping!r}")
+            for channel in mapping:
+                self.vocabulary.add_channel(str(channel), role) if learn else None
+            out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
+        return out[0], out[1]
+
+    def _tail(self, history: Sequence[Hashable]) -> list[Hashable]:
+        items = list(history)
+        return items[-(self.library.max_length if self.library is not None else 1):]
+
+    def _query(self, history: list, actions: Mapping[str, Hashable], k: int) -> dict:
+        if self.library is None:
+            return {}
+        steps, unknown = self._lookup_steps(history + [(actions, {})])
+        if self._predictor is None or self._predictor.top_k != k:
+            self._predictor = Predictor(self.library, top_k=k)
+        prediction = self._predictor.predict_unknown(steps, unknown)
+        return self._named(prediction, k)
+
+    def _lookup_steps(self, steps: list) -> tuple[list, np.ndarray]:
+        """Steps as symbols; a value never seen gets a symbol past the vocabulary."""
+        view_of = {name: i for i, name in enumerate(self.library.view_names)}
+        unknown: list[int] = []
+        rows = []
+        for step in steps:
+            actions, observations = step
+            row = []
+            for role, mapping in ((ACTION, actions), (OBSERVATION, observations)):
+                symbols = []
+                for channel, value in mapping.items():
+                    s = self._symbol(str(channel), value, learn=False)
+                    if s is None:
+                        s = len(self.vocabulary) + len(unknown)
+                        unknown.append(view_of.get(str(channel), -1) if role == OBSERVATION else -1)
+                    symbols.append(s)
+                row.append(tuple(symbols))
+            rows.append((row[0], row[1]))
+        return rows, np.asarray(unknown, np.int32)
+
+    def _named(self, prediction, k: int) -> dict:
+        out = {}
+        for view in prediction.views:
+            ranked = []
+            for symbols, share in view.ranked[:k]:
+                if len(symbols) == 1:
+                    ranked.append((self.vocabulary.name(symbols[0])[1], share))
+            out[view.name if view.name != "*" else ITEM] = ranked
+        return out
