@@ -16,6 +16,10 @@ to the outcome seen most recently. Peers:
 - ``VOM(k)``: the longest *seen* context of order at most ``k`` speaks ("longest seen
   context first"): shorter contexts are used only when the longer one was never seen,
   down to order 0; with nothing seen, it abstains (-1).
+- ``VOM(k + 1/2)``: the same over events, so a context may also begin at an action:
+  ``A_{i-k} O_{i-k} ... O_{i-1} A_i`` (order ``k + 1/2``) sits between orders ``k`` and
+  ``k + 1`` in the back-off. On ``delay`` the command before the current position matters
+  without the position before it: VOM(1 1/2) beats every step-aligned order.
 - ``AKOM(K)``: the all-k-order Markov model of the CPT+ papers (IPredict's
   ``MarkovAllKPredictor``): ``VOM(K)`` without the order-0 fallback (it abstains when no
   context of order 1..K was seen).
@@ -31,9 +35,9 @@ to the outcome seen most recently. Peers:
   actions only, by the same counts; a step is right when every channel that reports in it
   is. This peer is told which channels report.
 
-One count table (:class:`CountModel`) of order ``K`` answers ``VOM(1..K)``, ``AKOM(k <= K)``
-and ``PPM(k <= K)`` at once, since the counts of an order-``j`` context do not depend on
-the largest order kept.
+One count table (:class:`CountModel`) of order ``K`` answers ``VOM(1..K)``,
+``VOM(1 1/2 .. K - 1/2)``, ``AKOM(k <= K)`` and ``PPM(k <= K)`` at once, since the counts of a
+context do not depend on the largest order kept.
 
 The C reference (``bench/c/vom.c``, :func:`load_c_vom`) is ``VOM(k)`` over the same token
 array with its own open-addressing table; it is compiled with the system C compiler when
@@ -104,10 +108,12 @@ def _new_counts(slots: int, nodes: int, outcomes: int, tokens: int) -> Counts:
 
 @dataclass(frozen=True)
 class StepPredictions:
-    """Per step: ``vom[:, k - 1]`` is VOM(k)'s prediction, ``deepest`` the longest seen
-    context's order (-1 none), ``ppm`` the PPM prediction (-1 abstained or not asked)."""
+    """Per step: ``vom[:, k - 1]`` is VOM(k)'s prediction, ``half[:, k - 1]`` VOM(k + 1/2)'s,
+    ``deepest`` the longest seen step-aligned context's order (-1 none), ``ppm`` the PPM
+    prediction (-1 abstained or not asked)."""
 
     vom: np.ndarray
+    half: np.ndarray
     deepest: np.ndarray
     ppm: np.ndarray
 
@@ -141,15 +147,17 @@ class CountModel:
         act = np.ascontiguousarray(act, np.int32)
         n = max(len(obs) - 1, 0)
         out = StepPredictions(np.full((n, self.max_order), -1, np.int32),
+                              np.full((n, self.max_order - 1), -1, np.int32),
                               np.full(n, -1, np.int32), np.full(n, -1, np.int32))
         self._reserve_tokens(int(obs.max()) + 1 if len(obs) else 0)
         order = self.max_order if ppm_order is None else min(int(ppm_order), self.max_order)
         method = _PPM_METHODS[ppm] if ppm and predict else 0
+        path = np.zeros(2 * self.max_order, np.int32)
         chain = np.zeros(self.max_order + 1, np.int32)
         step = 1
         while step <= n:
             step = _run(self.counts, obs, act, step, self.max_order, learn, predict, method,
-                        order, chain, out.vom, out.deepest, out.ppm)
+                        order, path, chain, out.vom, out.half, out.deepest, out.ppm)
             if step <= n:
                 self._grow()
         return out
@@ -168,7 +176,8 @@ class CountModel:
         dist = np.zeros(len(self.counts.seen))
         order = self.max_order if order is None else order
         novel = _distribution(self.counts, history, act, len(obs), self.max_order, order,
-                              _PPM_METHODS[method], np.zeros(self.max_order + 1, np.int32), dist)
+                              _PPM_METHODS[method], np.zeros(2 * self.max_order, np.int32),
+                              np.zeros(self.max_order + 1, np.int32), dist)
         return dist, float(novel)
 
     def _reserve_tokens(self, size: int) -> None:
@@ -183,7 +192,7 @@ class CountModel:
     def _grow(self) -> None:
         c = self.counts
         keys, nodes, outcomes = (int(x) for x in c.sizes[:3])
-        margin = 3 * self.max_order + 3
+        margin = 4 * self.max_order + 4
         if nodes + margin > len(c.total):
             n = 2 * len(c.total)
             c = c._replace(total=_resized(c.total, n, 0), distinct=_resized(c.distinct, n, 0),
@@ -262,11 +271,15 @@ def _rehash(old_keys, old_values, keys, values):
 
 
 @numba.njit(inline="always")
-def _walk(keys, values, obs, act, i, max_order, chain):
-    """Nodes of the seen contexts of orders ``0..`` at step ``i`` into ``chain``; their number."""
+def _walk(keys, values, obs, act, i, max_order, path, chain):
+    """The seen contexts at step ``i``, read backwards from ``A_i``: ``path[d]`` is the node
+    of the ``d + 1`` newest events (``A_i``, then ``O_{i-1}``, ``A_{i-1}``, ...), and
+    ``chain[j]`` that of order ``j`` (``path[0]``, ``path[1]``, ``path[3]``, ...).
+    Returns the number of events matched (0: nothing seen)."""
     node = _find(keys, values, _key(0, _CONTEXT, act[i]))
     if node < 0:
         return 0
+    path[0] = node
     chain[0] = node
     depth = 1
     for j in range(1, max_order + 1):
@@ -276,10 +289,13 @@ def _walk(keys, values, obs, act, i, max_order, chain):
             node = _find(keys, values, _key(node, _CONTEXT, act[i - j + 1]))
             if node < 0:
                 break
+            path[depth] = node
+            depth += 1
         node = _find(keys, values, _key(node, _CONTEXT, obs[i - j]))
         if node < 0:
             break
-        chain[depth] = node
+        path[depth] = node
+        chain[j] = node
         depth += 1
     return depth
 
@@ -310,8 +326,10 @@ def _learn_step(keys, values, sizes, total, distinct, best, best_count, first, t
     _count(keys, values, sizes, total, distinct, best, best_count, first, token, count, nxt,
            node, y)
     for j in range(1, min(max_order, i) + 1):
-        if j >= 2:
+        if j >= 2:  # the context of order j - 1/2, which begins at an action
             node = _find_or_add(keys, values, sizes, _key(node, _CONTEXT, act[i - j + 1]), 1)
+            _count(keys, values, sizes, total, distinct, best, best_count, first, token,
+                   count, nxt, node, y)
         node = _find_or_add(keys, values, sizes, _key(node, _CONTEXT, obs[i - j]), 1)
         _count(keys, values, sizes, total, distinct, best, best_count, first, token, count,
                nxt, node, y)
@@ -371,29 +389,32 @@ def _ppm(first, token, count, nxt, mark, alphabet, sizes, chain, depth, method, 
 
 
 @numba.njit(cache=True)
-def _run(c, obs, act, step, max_order, learn, predict, method, ppm_order, chain, vom,
-         deepest, ppm):
+def _run(c, obs, act, step, max_order, learn, predict, method, ppm_order, path, chain, vom,
+         half, deepest, ppm):
     """Predict then count steps from ``step`` on; returns the next step to do (it stops
     early, before a step, when a table could fill up)."""
     keys, values, sizes, total, distinct = c.keys, c.values, c.sizes, c.total, c.distinct
     best, best_count, first, token, count, nxt = c.best, c.best_count, c.first, c.token, c.count, c.next
     seen, mark, alphabet = c.seen, c.mark, c.alphabet
     n = len(obs) - 1
-    margin = 3 * max_order + 3
+    margin = 4 * max_order + 4  # nodes, records and keys one step may add
     scratch = np.zeros(0)
     while step <= n:
         if learn and (sizes[0] + margin > len(keys) // 2 or sizes[1] + margin > len(total)
                       or sizes[2] + margin > len(token)):
             return step
         if predict:
-            depth = _walk(keys, values, obs, act, step, max_order, chain)
-            deepest[step - 1] = depth - 1
+            depth = _walk(keys, values, obs, act, step, max_order, path, chain)
+            orders = depth // 2 + 1 if depth > 0 else 0  # step-aligned contexts seen
+            deepest[step - 1] = orders - 1
             if depth > 0:
                 for k in range(1, max_order + 1):
-                    vom[step - 1, k - 1] = best[chain[min(k, depth - 1)]]
+                    vom[step - 1, k - 1] = best[chain[min(k, orders - 1)]]
+                for k in range(1, max_order):
+                    half[step - 1, k - 1] = best[path[min(2 * k, depth - 1)]]
             if method > 0:
                 ppm[step - 1] = _ppm(first, token, count, nxt, mark, alphabet, sizes, chain,
-                                     min(depth, ppm_order + 1), method, scratch, False)[0]
+                                     min(orders, ppm_order + 1), method, scratch, False)[0]
         if learn:
             _learn_step(keys, values, sizes, total, distinct, best, best_count, first, token,
                         count, nxt, seen, alphabet, obs, act, step, max_order)
@@ -402,10 +423,11 @@ def _run(c, obs, act, step, max_order, learn, predict, method, ppm_order, chain,
 
 
 @numba.njit(cache=True)
-def _distribution(c, obs, act, step, max_order, ppm_order, method, chain, dist):
-    depth = _walk(c.keys, c.values, obs, act, step, max_order, chain)
+def _distribution(c, obs, act, step, max_order, ppm_order, method, path, chain, dist):
+    depth = _walk(c.keys, c.values, obs, act, step, max_order, path, chain)
+    orders = depth // 2 + 1 if depth > 0 else 0
     return _ppm(c.first, c.token, c.count, c.next, c.mark, c.alphabet, c.sizes, chain,
-                min(depth, ppm_order + 1), method, dist, True)[1]
+                min(orders, ppm_order + 1), method, dist, True)[1]
 
 
 def step_tokens(episode: Episode, table: TokenTable | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -422,11 +444,13 @@ class PeerCorrect:
 
     Attributes:
         vom: ``(steps, max_order)``; column ``k - 1`` is VOM(k).
+        half: ``(steps, max_order - 1)``; column ``k - 1`` is VOM(k + 1/2).
         akom: AKOM(``akom_order``).
         ppm: PPM (``ppm`` method, order ``ppm_order``).
     """
 
     vom: np.ndarray
+    half: np.ndarray
     akom: np.ndarray
     ppm: np.ndarray
 
@@ -437,8 +461,8 @@ def prequential_correct(episode: Episode, max_order: int = 6, akom_order: int = 
     obs, act = step_tokens(episode)
     found = CountModel(max_order).run(obs, act, ppm=ppm, ppm_order=ppm_order)
     truth = obs[1:]
-    return PeerCorrect(found.vom == truth[:, None], found.akom(akom_order) == truth,
-                       found.ppm == truth)
+    return PeerCorrect(found.vom == truth[:, None], found.half == truth[:, None],
+                       found.akom(akom_order) == truth, found.ppm == truth)
 
 
 def channel_map(vocabulary: Vocabulary) -> np.ndarray:

@@ -54,11 +54,27 @@ class NaiveCounts:
         self.alphabet = []
         self.clock = 0
 
+    def events(self, obs, act, i):
+        """The history read backwards from ``A_i``: ``A_i, O_{i-1}, A_{i-1}, O_{i-2}, ...``."""
+        out = [act[i]]
+        for m in range(1, min(self.max_order, i) + 1):
+            out += ([act[i - m + 1]] if m > 1 else []) + [obs[i - m]]
+        return out
+
     def contexts(self, obs, act, i):
-        """Orders 0..: ``A_i``, then ``O_{i-1}``, ``A_{i-1}``, ``O_{i-2}``, ... read backwards."""
-        return [(act[i],) + tuple(v for m in range(1, j + 1)
-                                  for v in ((act[i - m + 1],) if m > 1 else ()) + (obs[i - m],))
-                for j in range(0, min(self.max_order, i) + 1)]
+        """The step-aligned contexts of orders 0.. (1, 2, 4, 6, ... newest events)."""
+        events = self.events(obs, act, i)
+        return [tuple(events[:max(1, 2 * j)]) for j in range(0, min(self.max_order, i) + 1)]
+
+    def event_vom(self, obs, act, i, tokens):
+        """The longest seen context of at most ``tokens`` newest events speaks."""
+        events = self.events(obs, act, i)
+        seen = [c for c in (tuple(events[:m]) for m in range(1, min(tokens, len(events)) + 1))
+                if c in self.counts]
+        if not seen:
+            return -1
+        table = self.counts[seen[-1]]
+        return max(table, key=lambda y: (table[y][0], table[y][1]))
 
     def vom(self, obs, act, i, k):
         seen = [c for c in self.contexts(obs, act, i)[:k + 1] if c in self.counts]
@@ -88,7 +104,8 @@ class NaiveCounts:
 
     def learn(self, obs, act, i):
         y = obs[i]
-        for context in self.contexts(obs, act, i):
+        events = self.events(obs, act, i)
+        for context in (tuple(events[:m]) for m in range(1, len(events) + 1)):
             entry = self.counts[context].setdefault(y, [0, 0])
             entry[0] += 1
             entry[1] = self.clock
@@ -114,6 +131,8 @@ def test_vom_and_akom_follow_the_specification_step_by_step(seed):
         for k in range(1, 5):
             expected, deepest = naive.vom(o, a, i, k)
             assert found.vom[i - 1, k - 1] == expected
+        for k in range(1, 4):
+            assert found.half[i - 1, k - 1] == naive.event_vom(o, a, i, 2 * k + 1)
         assert found.deepest[i - 1] == naive.vom(o, a, i, 4)[1]
         naive.learn(o, a, i)
     akom = found.akom(3)
