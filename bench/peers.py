@@ -530,13 +530,20 @@ def _held_readings(episode: Episode, channel_of: np.ndarray, observation_channel
 def load_c_vom(build_dir: str | Path | None = None) -> Callable[[np.ndarray, int], np.ndarray] | None:
     """The C VOM(k) of ``bench/c/vom.c``, compiled now; ``None`` without a C compiler.
 
-    Returns ``vom(tokens, order) -> predictions``: ``tokens`` an int32 ``O A ... O`` array,
-    one prediction per step (-1 = abstained).
+    The shared library is built in ``build_dir`` (default: a temporary folder, removed once
+    the library is loaded). Returns ``vom(tokens, order) -> predictions``: ``tokens`` an
+    int32 ``O A ... O`` array, one prediction per step (-1 = abstained).
     """
     compiler = next((c for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
     if compiler is None:
         return None
-    folder = Path(build_dir) if build_dir else Path(tempfile.mkdtemp(prefix="slearn-cvom-"))
+    if build_dir is None:
+        with tempfile.TemporaryDirectory(prefix="slearn-cvom-") as folder:
+            return _compile_and_load(compiler, Path(folder))
+    return _compile_and_load(compiler, Path(build_dir))
+
+
+def _compile_and_load(compiler: str, folder: Path) -> Callable[[np.ndarray, int], np.ndarray]:
     library = folder / "libvom.so"
     subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-o", str(library), str(_C_SOURCE)],
                    check=True, capture_output=True)

@@ -1,7 +1,6 @@
 """bench/peers.py: VOM, AKOM, PPM and the per-channel peer against plain-Python twins; the C
 VOM gives the same predictions."""
 
-import importlib.util
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -13,17 +12,10 @@ from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.stream import Episode
 from slearn.tokens import TokenTable
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-def _load(name):
-    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-peers = _load("peers")
+import bench_vom_speed  # noqa: E402
+import peers  # noqa: E402
 
 
 def _order2_episode(steps=4000, seed=0, symbols=5):
@@ -227,3 +219,11 @@ def test_the_c_vom_gives_the_same_predictions(tmp_path):
     found = peers.CountModel(4).run(obs, act, ppm=None)
     for k in (1, 2, 4):
         np.testing.assert_array_equal(vom(tokens, k), found.vom[:, k - 1])
+
+
+def test_speed_bench_smoke():
+    speed = bench_vom_speed
+    result = speed.measure(trials=2000, condition="simple", repeat=1)
+    assert result["steps"] == 2000 and result["slearn"] > 0
+    assert set(result["numba_vom"]) == set(speed.ORDERS)
+    assert len(speed.render(result).splitlines()) == 2 + len(speed.ORDERS)
