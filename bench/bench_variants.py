@@ -21,7 +21,13 @@ second table compares the thousand trials after it with the first thousand of th
 the demo's acceptance figures: thousands 6-10, or the thousand after the switch (6) for
 ``scramble`` and ``reversal``. Percent, mean over seeds; abstentions count as wrong.
 
-Run: ``python bench/bench_variants.py [--seeds 0-4] [--variants NAME,...] [--json]``.
+With ``--arm``, a last table runs the pointer arm (:mod:`slearn.recorders.arm`: 1-4
+joints, sensors ``moved`` and ``all``, conditions ``simple`` and ``error``) over thousands
+6-10: slearn, the best whole-step VOM(1..6) on the step tokens (a step's readings as one
+tuple), the per-channel VOM(1..3) of :func:`peers.per_channel_correct` (each joint from its
+own readings and the commands) and the exact ceiling (:func:`arm_oracle_correct`).
+
+Run: ``python bench/bench_variants.py [--seeds 0-4] [--variants NAME,...] [--arm] [--json]``.
 """
 
 from __future__ import annotations
@@ -34,7 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from peers import prequential_correct
+from peers import channel_map, per_channel_correct, prequential_correct
+from slearn.recorders.arm import (MAX_JOINTS, SENSORS, ArmConfig, arm_oracle_correct,
+                                  arm_vocabulary, simulate_arm)
 from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn_adapter import slearn_correct
@@ -116,6 +124,53 @@ def measure(config: PointerConfig) -> dict[str, np.ndarray]:
 
 def _percent(runs: list[dict[str, np.ndarray]], window: np.ndarray) -> dict[str, float]:
     return {c: 100.0 * float(np.mean([r[c][window].mean() for r in runs])) for c in COLUMNS}
+
+
+ARM_COLUMNS = ["slearn", "VOM", "VOM order", "channel VOM1", "channel VOM2", "channel VOM3",
+               "ceiling"]
+
+
+def measure_arm(config: ArmConfig) -> dict[str, np.ndarray]:
+    """Per column, whether each arm trial was predicted right (one seed)."""
+    run = simulate_arm(config)
+    episode = run.to_episode()
+    whole = prequential_correct(episode, MAX_ORDER, PEER_ORDER, "C", PEER_ORDER)
+    out = {"slearn": np.asarray(slearn_correct(episode), bool), "ceiling": arm_oracle_correct(run)}
+    out.update({f"VOM{k}": whole.vom[:, k - 1] for k in range(1, MAX_ORDER + 1)})
+    channels = channel_map(arm_vocabulary(config.joints))
+    for k in (1, 2, 3):
+        out[f"channel VOM{k}"] = per_channel_correct(episode, channels, order=k).step
+    return out
+
+
+def run_arm(seeds: list[int], trials: int = 10_000) -> list[dict]:
+    """Every arm layout over ``seeds``, thousands 6-10 (the last half)."""
+    results = []
+    for condition in ("simple", "error"):
+        for sensors in SENSORS:
+            for joints in range(1, MAX_JOINTS + 1):
+                runs = [measure_arm(ArmConfig(joints, trials, seed, sensors, condition))
+                        for seed in seeds]
+                window = slice(trials // 2, trials)
+                figures = {c: 100.0 * float(np.mean([r[c][window].mean() for r in runs]))
+                           for c in runs[0]}
+                order = max(range(1, MAX_ORDER + 1), key=lambda k: figures[f"VOM{k}"])
+                figures.update({"VOM": figures[f"VOM{order}"], "VOM order": order})
+                results.append({"condition": condition, "sensors": sensors, "joints": joints,
+                                **figures})
+                print(f"arm {condition} {sensors} {joints}: done", file=sys.stderr)
+    return results
+
+
+def render_arm(rows: list[dict]) -> str:
+    """The arm table."""
+    head = f"{'condition':<10}{'sensors':<8}{'joints':>6} " + " ".join(f"{c:>12}" for c in ARM_COLUMNS)
+    lines = ["", "pointer arm, thousands 6-10 (VOM: the best whole-step order 1-6)", head,
+             "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['condition']:<10}{r['sensors']:<8}{r['joints']:>6} " + " ".join(
+            f"{r[c]:12.0f}" if c == "VOM order" else f"{r[c]:12.1f}" for c in ARM_COLUMNS))
+    return "\n".join(lines)
 
 
 def _with_best(figures: dict[str, float]) -> dict:
@@ -205,6 +260,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", default="0-4", help="seeds, e.g. 0-4 or 0,3")
     parser.add_argument("--variants", help="comma-separated variant names (default: all)")
+    parser.add_argument("--arm", action="store_true", help="add the pointer arm table")
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
     chosen = VARIANTS
@@ -217,11 +273,12 @@ def main() -> None:
                          f"known: {', '.join(v.name for v in VARIANTS)}")
     seeds = parse_seeds(args.seeds)
     results = run(chosen, seeds)
+    arm = run_arm(seeds) if args.arm else None
     if args.json:
         print(json.dumps({"seeds": seeds, "settle_trials": SETTLE, "columns": COLUMNS,
-                          "variants": results}))
+                          "variants": results, "arm": arm}))
     else:
-        print(render(results, seeds))
+        print(render(results, seeds) + (render_arm(arm) if arm else ""))
 
 
 if __name__ == "__main__":

@@ -68,3 +68,15 @@ def test_a_run_gives_every_column_and_the_tables(capsys):
     text = bench.render(results, [0])
     assert text.count("reversal @3000 back @6000") == 3 and "delay" in text
     json.dumps(results)
+
+
+def test_arm_columns():
+    from slearn.recorders.arm import ArmConfig
+
+    figures = bench.measure_arm(ArmConfig(3, 3000, 0, "all"))
+    assert set(figures) >= {"slearn", "ceiling", "VOM1", "channel VOM1", "channel VOM3"}
+    assert figures["channel VOM1"][-500:].mean() > 0.95 > figures["VOM1"][-500:].mean()
+    assert figures["ceiling"].all()
+    row = {"condition": "simple", "sensors": "all", "joints": 3, "VOM": 9.0, "VOM order": 1,
+           **{c: 50.0 for c in bench.ARM_COLUMNS if c not in ("VOM", "VOM order")}}
+    assert bench.render_arm([row]).splitlines()[-1].split()[:3] == ["simple", "all", "3"]
