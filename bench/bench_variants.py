@@ -278,7 +278,7 @@ def main() -> None:
         print(json.dumps({"seeds": seeds, "settle_trials": SETTLE, "columns": COLUMNS,
                           "variants": results, "arm": arm}))
     else:
-        print(render(results, seeds) + (render_arm(arm) if arm else ""))
+        print(render(results, seeds) + ("\n" + render_arm(arm) if arm else ""))
 
 
 if __name__ == "__main__":
