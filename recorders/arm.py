@@ -16,11 +16,18 @@ Sensors (``sensors``):
 - ``all``: after a trial, every joint's sensor reports (like ``/joint_states``); each
   step's observation is the tuple of all joint labels, ``36 ** joints`` possible values.
 
+Conditions (``condition``): ``simple``, every command moves its joint exactly 10 degrees;
+``error``, the pointer's ``error``: each move is 10 degrees plus uniform noise in
+``[-error_deg, +error_deg]``, so each joint keeps a continuous angle. The ceiling
+(:func:`arm_oracle_correct`) is the pointer's exact filter run on each joint's own trials:
+the joints not commanded stand still and are known, so a step is predictable exactly when
+the moved joint's reading is.
+
 Channels ``/arm/joint{j}/command`` (action) and ``/arm/joint{j}/position`` (observation),
 ``j = 1..joints``, with the pointer's JSON schemas. Log times as the pointer: trial ``i``
 issues its command at ``i * 100 ms`` and reads at ``+50 ms``; all joints report their
 start positions at 0. Randomness comes from child streams of ``SeedSequence(seed)``
-(start, joint choice, commands).
+(start, joint choice, commands, noise).
 """
 
 from __future__ import annotations
@@ -35,7 +42,9 @@ import numpy as np
 from slearn import __version__
 from slearn.errors import InputError
 from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.recorders.pointer import COMMAND_NAMES, N_BINS
+from slearn.recorders.pointer import (BIN_DEG, COMMAND_NAMES, FULL_TURN_DEG, N_BINS,
+                                      PointerConfig, PointerRun, bin_of)
+from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.recorders.record_pointer import (COMMAND_SCHEMA, POSITION_SCHEMA, SENSE_DELAY_NS,
                                              TRIAL_NS, RecordSummary)
 from slearn.serialize import prepare_vocabulary
@@ -45,6 +54,7 @@ from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
 
 MAX_JOINTS = 4
 SENSORS = ("moved", "all")
+ARM_CONDITIONS = ("simple", "error")
 METADATA_NAME = "slearn.arm"
 _SYMBOLS_PER_JOINT = len(COMMAND_NAMES) + N_BINS
 
@@ -68,12 +78,16 @@ class ArmConfig:
         trials: number of trials (one command each), at least 1.
         seed: non-negative seed of all randomness.
         sensors: ``"moved"`` or ``"all"`` (see the module doc).
+        condition: ``"simple"`` or ``"error"`` (see the module doc).
+        error_deg: half-width of the uniform move noise under ``error``, 0 to 10.
     """
 
     joints: int = 2
     trials: int = 10_000
     seed: int = 0
     sensors: str = "moved"
+    condition: str = "simple"
+    error_deg: float = 5.0
 
     def __post_init__(self) -> None:
         for name, value, low, high in (("joints", self.joints, 1, MAX_JOINTS),
@@ -86,11 +100,23 @@ class ArmConfig:
         if self.sensors not in SENSORS:
             raise InputError(f"pointer arm sensors {self.sensors!r} is unknown: "
                              f"use one of {', '.join(SENSORS)}")
+        if self.condition not in ARM_CONDITIONS:
+            raise InputError(f"pointer arm condition {self.condition!r} is unknown: "
+                             f"use one of {', '.join(ARM_CONDITIONS)}")
+        error = self.error_deg
+        if (isinstance(error, bool) or not isinstance(error, numbers.Real)
+                or not 0.0 <= error <= BIN_DEG):
+            raise InputError(f"pointer arm error_deg must be a number in [0, {BIN_DEG:g}], "
+                             f"not {error!r}")
 
     def parameters(self) -> dict[str, str]:
-        """All fields as strings (for MCAP metadata)."""
-        return {"joints": str(self.joints), "trials": str(self.trials), "seed": str(self.seed),
-                "sensors": self.sensors}
+        """All fields as strings (for MCAP metadata); the condition only when it is not
+        ``simple``, so earlier recordings keep their metadata."""
+        out = {"joints": str(self.joints), "trials": str(self.trials), "seed": str(self.seed),
+               "sensors": self.sensors}
+        if self.condition != "simple":
+            out.update(condition=self.condition, error_deg=repr(float(self.error_deg)))
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,12 +128,14 @@ class ArmRun:
         joint: ``uint8`` per trial, the commanded joint (0-based).
         commands: ``uint8`` per trial, 0 = ``L``, 1 = ``R``.
         positions: ``int16`` ``(trials + 1, joints)`` labels 1..36; row 0 is the start.
+        angles: ``float64`` ``(trials + 1, joints)`` ground-truth angles in degrees.
     """
 
     config: ArmConfig
     joint: np.ndarray
     commands: np.ndarray
     positions: np.ndarray
+    angles: np.ndarray
 
     def __len__(self) -> int:
         return len(self.commands)
@@ -130,15 +158,37 @@ class ArmRun:
 
 def simulate_arm(config: ArmConfig) -> ArmRun:
     """Simulate one arm episode; deterministic in ``config``."""
-    start, choice, policy = (np.random.default_rng(child)
-                             for child in np.random.SeedSequence(config.seed).spawn(3))
+    start, choice, policy, noise = (np.random.default_rng(child)
+                                    for child in np.random.SeedSequence(config.seed).spawn(4))
     bins = start.integers(N_BINS, size=config.joints)
     joint = choice.integers(config.joints, size=config.trials, dtype=np.uint8)
     commands = policy.integers(0, 2, size=config.trials, dtype=np.uint8)
-    moves = np.zeros((config.trials + 1, config.joints), np.int64)
-    moves[np.arange(1, config.trials + 1), joint] = commands.astype(np.int64) * 2 - 1
-    positions = (np.cumsum(moves, axis=0) + bins) % N_BINS + 1
-    return ArmRun(config, joint, commands, positions.astype(np.int16))
+    moves = np.zeros((config.trials + 1, config.joints))
+    size = BIN_DEG
+    if config.condition == "error":
+        size = BIN_DEG + noise.uniform(-config.error_deg, config.error_deg, size=config.trials)
+    moves[np.arange(1, config.trials + 1), joint] = (commands.astype(np.int64) * 2 - 1) * size
+    angles = np.mod(np.cumsum(moves, axis=0) + (bins + 0.5) * BIN_DEG, FULL_TURN_DEG)
+    positions = bin_of(angles) + 1
+    return ArmRun(config, joint, commands, positions.astype(np.int16), angles)
+
+
+def arm_oracle_correct(run: ArmRun) -> np.ndarray:
+    """Per trial, whether the optimal predictor is right: the pointer's exact filter
+    (:mod:`slearn.recorders.pointer_oracle`) on the commanded joint's own trials."""
+    correct = np.ones(len(run), bool)
+    for j in range(run.config.joints):
+        trials = np.flatnonzero(run.joint == j)
+        if len(trials) == 0:
+            continue
+        rows = np.concatenate(([0], trials + 1))
+        config = PointerConfig(run.config.condition, trials=len(trials),
+                               error_deg=run.config.error_deg)
+        joint_run = PointerRun(config, run.commands[trials], run.positions[rows, j],
+                               run.angles[rows, j], np.ones(len(trials), np.uint8),
+                               np.arange(1, N_BINS + 1, dtype=np.int16))
+        correct[trials] = oracle_correct(joint_run)
+    return correct
 
 
 def arm_spec(joints: int) -> Spec:

@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from slearn import __version__
+from slearn.errors import InputError
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import (COMMAND_CHANNEL, COMMAND_NAMES, N_BINS, POSITION_CHANNEL,
                                       PointerConfig, PointerRun, simulate)
@@ -80,8 +81,12 @@ def write_pointer_mcap(run: PointerRun, path: str | os.PathLike, *,
     """Write ``run`` as one MCAP episode at ``path``, atomically.
 
     Raises:
-        InputError: ``path`` exists and ``overwrite`` is false, or its folder is missing.
+        InputError: ``path`` exists and ``overwrite`` is false, or its folder is missing, or
+            the run does not have the logs' 36 bins.
     """
+    if run.config.bins != N_BINS:
+        raise InputError(f"pointer logs have {N_BINS} bins, not {run.config.bins}: simulate "
+                         "other bin counts in memory (slearn.recorders.pointer.simulate)")
     with EpisodeWriter(path, overwrite=overwrite) as out:
         out.add_metadata(METADATA_NAME, pointer_metadata(run))
         command = out.register_channel(COMMAND_CHANNEL, COMMAND_SCHEMA["title"], COMMAND_SCHEMA,
@@ -102,7 +107,7 @@ def pointer_metadata(run: PointerRun) -> dict[str, str]:
     metadata = run.config.parameters()
     metadata.update(simulator="slearn.recorders.pointer", slearn_version=__version__,
                     bins=str(N_BINS), trial_ns=str(TRIAL_NS), sense_delay_ns=str(SENSE_DELAY_NS))
-    if run.config.condition == "scramble":
+    if "scramble" in run.config.effects:
         metadata["sensor_labels_after_switch"] = " ".join(map(str, run.sensor_labels.tolist()))
     return metadata
 

@@ -1,5 +1,7 @@
 """recorders.arm: dynamics, determinism, layouts, MCAP recording = in-memory episode."""
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -7,8 +9,8 @@ from slearn.errors import InputError
 from slearn.library import PatternLibrary
 from slearn.online import run_online
 from slearn.predictor import Predictor
-from slearn.recorders.arm import (SENSORS, ArmConfig, arm_spec, arm_vocabulary, record_arm,
-                                  simulate_arm)
+from slearn.recorders.arm import (SENSORS, ArmConfig, arm_oracle_correct, arm_spec,
+                                  arm_vocabulary, record_arm, simulate_arm)
 from slearn.serialize import read_episodes
 from slearn.vocabulary import Vocabulary
 
@@ -68,6 +70,8 @@ def test_one_joint_is_learned_like_the_simple_pointer():
     ({"trials": 0}, "trials must be an integer >= 1"),
     ({"seed": -1}, "seed must be an integer >= 0"),
     ({"sensors": "some"}, "sensors 'some' is unknown"),
+    ({"condition": "delay"}, "condition 'delay' is unknown"),
+    ({"condition": "error", "error_deg": 11.0}, r"error_deg must be a number in \[0, 10\]"),
 ])
 def test_bad_config(kwargs, message):
     with pytest.raises(InputError, match=message):
@@ -95,3 +99,42 @@ def test_bench_arm_smoke():
     assert results[0]["accuracy"][-1] == 1.0 and len(results[0]["accuracy"]) == 2
     assert all(r["patterns"] <= 2000 + 4 for r in results)  # at most one new pattern a step
     assert len(bench.render(results).splitlines()) == 2 + 4
+
+
+@pytest.mark.parametrize("args, digest", [((3, 2000, 2, "all"), "d677959385ed2555"),
+                                          ((4, 2000, 1, "moved"), "c3b7653730b93c17")])
+def test_simple_arm_is_unchanged_seed_for_seed(args, digest):
+    """Digests of the arm before the error condition existed."""
+    run = simulate_arm(ArmConfig(*args))
+    data = run.positions.tobytes() + run.joint.tobytes() + run.commands.tobytes()
+    assert hashlib.sha256(data).hexdigest()[:16] == digest
+    assert set(run.config.parameters()) == {"joints", "trials", "seed", "sensors"}
+    assert arm_oracle_correct(run).all()
+
+
+def test_error_moves_the_commanded_joint_with_noise_and_nothing_else():
+    run = simulate_arm(ArmConfig(joints=3, trials=3000, seed=4, condition="error", error_deg=5.0))
+    turns = -((-np.diff(run.angles, axis=0) + 180) % 360 - 180)
+    moved = turns[np.arange(3000), run.joint] * np.where(run.commands == 1, 1, -1)
+    assert moved.min() >= 5 and moved.max() <= 15 and moved.max() > 14.5
+    turns[np.arange(3000), run.joint] = 0
+    assert (turns == 0).all()  # the other joints stand still
+    np.testing.assert_array_equal(run.positions, np.floor(run.angles / 10).astype(int) % 36 + 1)
+    assert run.config.parameters()["condition"] == "error"
+
+
+@pytest.mark.parametrize("sensors", SENSORS)
+def test_error_arm_ceiling_is_the_pointer_ceiling(sensors):
+    run = simulate_arm(ArmConfig(joints=2, trials=6000, seed=1, sensors=sensors,
+                                 condition="error"))
+    ceiling = arm_oracle_correct(run)
+    assert len(ceiling) == 6000 and 0.72 <= ceiling.mean() <= 0.79
+    one = simulate_arm(ArmConfig(joints=1, trials=2000, condition="error", error_deg=0.0))
+    assert arm_oracle_correct(one).all()  # no noise: exact
+
+
+def test_error_arm_recording_reads_back_as_the_in_memory_episode(tmp_path):
+    config = ArmConfig(joints=2, trials=200, seed=3, sensors="all", condition="error")
+    record_arm(config, tmp_path / "arm.mcap")
+    [(_, episode, _)] = read_episodes([tmp_path / "arm.mcap"], arm_spec(2), Vocabulary())
+    assert np.array_equal(episode.symbols, simulate_arm(config).to_episode().symbols)

@@ -1,0 +1,59 @@
+"""bench/bench_sequences.py: readers, the IPredict split and query, and a small evaluation."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+
+import bench_sequences as bench  # noqa: E402
+
+
+def test_spmf_and_ipredict_files_are_read_as_ipredict_reads_them(tmp_path):
+    (tmp_path / "FIFA.txt").write_text("# comment\n1 -1 2 -1 2 -1 3 -1 4 -1 5 -1 6 -1 -2\n"
+                                       "7 -1 8 -1 -2\n")
+    (tmp_path / "BMS.dat").write_text("".join(f"{s} {i}\n" for s in (1, 2) for i in range(10 * s)))
+    (tmp_path / "sign_language.txt").write_text(
+        "#header\n" + "".join(f"{u} {2 * i} -11 {2 * i + 1}\n" for u in (1, 2) for i in range(6)))
+    (tmp_path / "kjv.txt").write_text("In the beginning\nshort\nAnd the earth\n")
+    found, notes = bench.public_datasets(tmp_path)
+    by_name = {d.name: d for d in found}
+    assert sorted(by_name) == ["BIBLE_CHAR", "BMS", "FIFA", "SIGN"]
+    assert by_name["FIFA"].sequences == [[0, 1, 2, 3, 4, 5]]  # repeat dropped, short one left out
+    assert [len(s) for s in by_name["BMS"].sequences] == [10, 20]
+    assert [len(s) for s in by_name["SIGN"].sequences] == [12, 12]  # -11 is not an item
+    assert len(by_name["BIBLE_CHAR"].sequences) == 2 and by_name["BIBLE_CHAR"].profile.consequent == 2
+    assert len(notes) == 1 and notes[0].startswith("MSNBC")
+
+
+def test_split_and_query_follow_ipredict():
+    folds = bench.split(31, 14, seed=0)
+    assert [len(f) for f in folds] == [2] * 13 + [5]
+    assert sorted(np.concatenate(folds).tolist()) == list(range(31))
+    prefix, consequent = bench._query(list(range(20)), bench.Profile(7, 3, 10))
+    assert prefix == list(range(10, 17)) and consequent == [17, 18, 19]
+
+
+def test_a_deterministic_source_is_predicted_perfectly():
+    rng = np.random.default_rng(0)
+    sequences = []
+    for _ in range(300):  # order 2: next = (a + 2b) mod 7
+        s = rng.integers(0, 7, 2).tolist()
+        while len(s) < 12:
+            s.append((s[-2] + 2 * s[-1]) % 7)
+        sequences.append(s)
+    result = bench.evaluate(bench.Dataset("det", sequences, bench.Profile()), folds=3, seed=0)
+    assert result["AKOM5"] == 100.0 and result["PPM-C5"] == 100.0
+    assert 0 <= result["slearn"] <= 100 and result["ceiling"] is None
+
+
+def test_synthetic_sources_and_their_ceilings():
+    markov = bench.markov_source(2, 10, seed=1, count=300)
+    periodic = bench.periodic_source(seed=2, count=300)
+    for dataset, low, high in ((markov, 0.3, 0.9), (periodic, 0.85, 0.92)):
+        assert len(dataset.sequences) == 300
+        assert all(10 <= len(s) <= 40 for s in dataset.sequences)
+        ceilings = [dataset.ceiling(*bench._query(s, dataset.profile)) for s in dataset.sequences]
+        assert 0 < min(ceilings) and max(ceilings) <= 1
+        assert low < np.mean(ceilings) < high  # periodic: 90 % + 10 % / 20 at most
