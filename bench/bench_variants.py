@@ -135,7 +135,8 @@ def measure_arm(config: ArmConfig) -> dict[str, np.ndarray]:
     run = simulate_arm(config)
     episode = run.to_episode()
     whole = prequential_correct(episode, MAX_ORDER, PEER_ORDER, "C", PEER_ORDER)
-    out = {"slearn": np.asarray(slearn_correct(episode), bool), "ceiling": arm_oracle_correct(run)}
+    out = {"slearn": np.asarray(slearn_correct(episode, vocabulary=arm_vocabulary(config.joints)), bool),
+           "ceiling": arm_oracle_correct(run)}
     out.update({f"VOM{k}": whole.vom[:, k - 1] for k in range(1, MAX_ORDER + 1)})
     channels = channel_map(arm_vocabulary(config.joints))
     for k in (1, 2, 3):

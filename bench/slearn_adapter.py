@@ -1,10 +1,12 @@
 """The one place the benchmarks call slearn's predictor: repoint these two functions when the
 predictor's API changes, and every table follows.
 
-Today: a :class:`slearn.library.PatternLibrary` read by a :class:`slearn.predictor.Predictor`,
-learned prequentially with :func:`slearn.online.run_online` (as ``slearn demo`` does).
-Options: ``scoring`` (``"adaptive"``, the default, or ``"literal"``) and ``max_length``
-(the library's longest pattern, in steps).
+Online runs learn prequentially from an empty library (predict each step, then learn it), as
+``slearn demo`` does. Options: ``scoring`` (``"adaptive"``, the default: every occurrence
+counted, contexts weighed by their record; or ``"literal"``: the paper's rule),
+``max_length`` (steps of history in a context) and ``vocabulary`` (names the channels, so
+each observation channel is predicted on its own; without it a step's observations are
+predicted together).
 """
 
 from __future__ import annotations
@@ -12,30 +14,45 @@ from __future__ import annotations
 import numpy as np
 
 from slearn.library import PatternLibrary
-from slearn.online import run_online
+from slearn.literal import DEFAULT_MAX_LENGTH as LITERAL_MAX_LENGTH
+from slearn.literal import LiteralLibrary
 from slearn.predictor import Predictor
 from slearn.stream import Episode
 
 
-def _predictor(options: dict) -> Predictor:
-    library = PatternLibrary(**({"max_length": options["max_length"]}
-                                if "max_length" in options else {}))
-    return Predictor(library, options.get("scoring", "adaptive"))
+def new_library(options: dict) -> PatternLibrary | LiteralLibrary:
+    """An empty library for ``options``."""
+    if options.get("scoring", "adaptive") == "literal":
+        return LiteralLibrary(options.get("max_length", LITERAL_MAX_LENGTH))
+    kwargs = {"max_length": options["max_length"]} if "max_length" in options else {}
+    return PatternLibrary(vocabulary=options.get("vocabulary"), **kwargs)
+
+
+def step_correct(library, episode: Episode) -> np.ndarray:
+    """Predict then learn every step of ``episode``; per step after the first, whether every
+    observation of the step was predicted right (abstentions count as wrong)."""
+    codes = library.encode(episode)
+    reports = library.run(codes, learn=True, record=True)
+    wrong = reports.context & (reports.predicted != codes.token)
+    step_of = np.repeat(np.arange(len(codes)), np.diff(codes.offsets))
+    bad = np.zeros(len(codes), bool)
+    np.logical_or.at(bad, step_of, wrong)
+    return ~bad[1:]
 
 
 def slearn_correct(episode: Episode, **options) -> np.ndarray:
-    """Per step after the first, whether slearn predicted it right, online from an empty
-    library (predict each step, then learn it; abstentions count as wrong)."""
-    return run_online(_predictor(options), episode).correct
+    """Per step after the first, whether slearn predicted it right, online from empty."""
+    return step_correct(new_library(options), episode)
 
 
 def slearn_sequence_predictions(train: list[list[int]], queries: list[list[int]],
                                 **options) -> np.ndarray:
     """Learn ``train`` (one sequence = one episode, no actions) in order, then predict the
     item after each query with the library frozen; -1 where slearn abstains."""
-    predictor = _predictor(options)
+    library = new_library(options)
     for sequence in train:
-        run_online(predictor, _episode(sequence))
+        library.learn(_episode(sequence))
+    predictor = Predictor(library)
     out = np.full(len(queries), -1, np.int64)
     for i, query in enumerate(queries):
         guess = predictor.predict([((), (int(item),)) for item in query], ())

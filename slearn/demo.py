@@ -52,6 +52,7 @@ class ConditionResult:
     abstained: list[float]
     patterns: int
     library_bytes: int
+    literal_patterns: int = 0
     log_path: str = ""
     library_path: str = ""
     library_file_bytes: int = 0
@@ -85,6 +86,7 @@ def _condition_dict(result: ConditionResult) -> dict:
         "accuracy_percent": result.accuracy, "accuracy_percent_per_seed": result.per_seed,
         "ceiling_percent": result.ceiling, "abstained_percent": result.abstained,
         "paper": PAPER[result.condition], "patterns": result.patterns,
+        "literal_patterns": result.literal_patterns,
         "library_bytes_in_memory": result.library_bytes, "library_file": result.library_path,
         "library_file_bytes": result.library_file_bytes, "log": result.log_path,
         "seconds": round(result.seconds, 3),
@@ -102,7 +104,7 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
     started = time.perf_counter()
     curves: dict[str, list[list[float]]] = {rule: [] for rule in RULES}
     ceiling, abstained = [], []
-    first = None
+    first, literal_patterns = None, None
     for seed in seeds:
         run = simulate(PointerConfig(condition, trials=trials, seed=seed, switch_trial=trials // 2))
         if first is None:
@@ -119,10 +121,13 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
                 abstained.append(windowed_percent(abstain))
                 if first is None:
                     first = (library, vocabulary, log_path)
+            elif literal_patterns is None:
+                literal_patterns = len(library)
         ceiling.append(windowed_percent(oracle_correct(run)))
     library, vocabulary, log_path = first
     out = ConditionResult(condition, {r: _mean(c) for r, c in curves.items()}, curves, _mean(ceiling),
-                          _mean(abstained), len(library), library.nbytes(), str(log_path))
+                          _mean(abstained), len(library), library.nbytes(), literal_patterns or 0,
+                          str(log_path))
     if save is not None:
         out.library_path = str(out_dir / "libraries" / f"{condition}.parquet")
         out.library_file_bytes = save(out.library_path, library, vocabulary, log_path, seeds[0])

@@ -9,6 +9,10 @@ since the view's current epoch (:mod:`slearn.context_tree`). A context and one o
 outcomes is a pattern: the run of events ``context + outcome`` with its count and
 recency. The weights of :mod:`slearn.mixer` decide which context speaks; learning trains
 them (:mod:`slearn.online`), so a library learned offline predicts with its full scoring.
+``max_patterns`` bounds the patterns kept: when a step leaves the library at the bound,
+the rarest, oldest patterns are forgotten down to 90 % of it (so while learning it never
+holds more than the bound plus one step's new patterns, and never more than the bound
+after a call).
 
 The paper's literal rule (counting only at parse boundaries, the longest match first)
 is :mod:`slearn.literal`.
@@ -16,8 +20,7 @@ is :mod:`slearn.literal`.
 Counts and recency merge exactly: learning two sets of episodes separately and
 merging (:func:`merge`) gives the counts and recency of learning them in one run, in
 that order. The scoring state (weights, detectors, fresh counts) follows the documented
-rule of :func:`merge`. ``max_patterns`` bounds memory by forgetting the rarest, oldest
-patterns (and contexts left without any) when the bound is reached, down to 90 % of it.
+rule of :func:`slearn.merge.merge_libraries`.
 """
 
 from __future__ import annotations
@@ -217,6 +220,8 @@ class PatternLibrary:
                              codes.token, step, self.clock_array, run, out)
             if step < len(codes):
                 self._make_room(int(codes.offsets[step + 1] - codes.offsets[step]))
+        if learn and self.max_patterns is not None and len(self) > self.max_patterns:
+            self.forget(int(self.max_patterns * FORGET_TO))
         return out
 
     def _entry_bound(self) -> int:
@@ -224,8 +229,8 @@ class PatternLibrary:
 
     def _make_room(self, reports: int) -> None:
         need = self.max_context * max(reports, 1)
-        if self.max_patterns is not None and len(self) + need > self.max_patterns:
-            self.forget(max(int(self.max_patterns * FORGET_TO), 0))
+        if self.max_patterns is not None and len(self) >= self.max_patterns:
+            self.forget(int(self.max_patterns * FORGET_TO))
         self.tree = context_tree.ensure_room(self.tree, need + 64, need + 64)
 
     # --- forgetting -------------------------------------------------------------------
@@ -337,7 +342,7 @@ def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
     _keep_ancestors(tree.parent, keep_node)
     node_id = np.cumsum(keep_node) - 1
     kept_nodes, kept_entries = np.flatnonzero(keep_node), np.flatnonzero(alive)
-    out = context_tree.new_tree(len(tree.parent), len(tree.owner))
+    out = context_tree.new_tree(max(2 * len(kept_nodes), 1024), max(2 * len(kept_entries), 1024))
     parents = tree.parent[kept_nodes]
     out.parent[: len(kept_nodes)] = np.where(parents < 0, -1, node_id[np.maximum(parents, 0)])
     out.token[: len(kept_nodes)] = tree.token[kept_nodes]

@@ -99,7 +99,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
         r0, r1 = offsets[step], offsets[step + 1]
         need = K * (r1 - r0)
         if learn and (len(parent) - size[0] < need or len(owner) - size[1] < need
-                      or size[1] + need > run.max_entries):
+                      or size[1] >= run.max_entries):
             return step
         a = action[step]
         push_action = run.has_actions and (step > 0 or a != run.empty_action

@@ -83,6 +83,9 @@ class Predictor:
         """Predict the observations of the last step of ``steps`` (its observations are
         ignored). Symbols past the vocabulary are values never seen; ``unknown_views``
         gives the view of each (factored libraries)."""
+        if self.library.clock == 0 or not self.library.view_names:
+            return Prediction([ViewPrediction(v, name, None, 0.0, -1, "")
+                               for v, name in enumerate(self.library.view_names)])
         codes = self._codes(steps, unknown_views)
         reports = self._run(codes)
         first = int(codes.offsets[-2])

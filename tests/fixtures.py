@@ -33,3 +33,16 @@ def write_log(path, messages, encodings=None, chunk_size=1 << 20):
                                data=json.dumps(payload).encode())
         writer.finish()
     return Path(path)
+
+
+def online_correct(library, episode):
+    """Predict then learn every step of ``episode``; per step after the first, whether all
+    its observations were predicted right (abstentions count as wrong)."""
+    import numpy as np
+
+    codes = library.encode(episode)
+    reports = library.run(codes, learn=True, record=True)
+    wrong = reports.context & (reports.predicted != codes.token)
+    bad = np.zeros(len(codes), bool)
+    np.logical_or.at(bad, np.repeat(np.arange(len(codes)), np.diff(codes.offsets)), wrong)
+    return ~bad[1:]

@@ -7,8 +7,7 @@ import pytest
 
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
-from slearn.online import run_online
-from slearn.predictor import Predictor
+from fixtures import online_correct
 from slearn.recorders.arm import (SENSORS, ArmConfig, arm_oracle_correct, arm_spec,
                                   arm_vocabulary, record_arm, simulate_arm)
 from slearn.serialize import read_episodes
@@ -60,8 +59,24 @@ def test_step_layouts():
 
 def test_one_joint_is_learned_like_the_simple_pointer():
     episode = simulate_arm(ArmConfig(joints=1, trials=3000, seed=0)).to_episode()
-    result = run_online(Predictor(PatternLibrary()), episode)
-    assert result.correct[-1000:].mean() == 1.0
+    assert online_correct(PatternLibrary(), episode)[-1000:].mean() == 1.0
+
+
+@pytest.mark.parametrize("sensors", SENSORS)
+@pytest.mark.parametrize("joints", [2, 3, 4])
+def test_every_joint_is_predicted_from_its_own_reading_and_the_command(joints, sensors):
+    """Issue 11's acceptance: >= 99 % of whole steps in thousands 6-10 (seed 0 here)."""
+    episode = simulate_arm(ArmConfig(joints=joints, trials=10_000, seed=0, sensors=sensors)).to_episode()
+    library = PatternLibrary(vocabulary=arm_vocabulary(joints))
+    assert online_correct(library, episode)[5000:].mean() >= 0.99
+
+
+def test_the_error_arm_is_learned_to_its_ceiling():
+    run = simulate_arm(ArmConfig(joints=3, trials=10_000, seed=0, sensors="all", condition="error"))
+    library = PatternLibrary(vocabulary=arm_vocabulary(3))
+    got = online_correct(library, run.to_episode())[5000:].mean()
+    ceiling = arm_oracle_correct(run)[5000:].mean()
+    assert got >= ceiling - 0.02
 
 
 @pytest.mark.parametrize("kwargs, message", [

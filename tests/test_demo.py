@@ -30,7 +30,7 @@ def test_deterministic_conditions_are_learned_within_a_thousand_trials(demo, con
 def test_switches_are_relearned_quickly(demo, condition):
     curve = demo[condition].accuracy["adaptive"]
     assert curve[0] >= 90 and min(curve[1:5]) >= 99.5
-    assert curve[5] >= 80
+    assert curve[5] >= 92  # the thousand after the switch
     assert min(curve[7:]) >= 99
     # the paper's literal scoring recovers more slowly: the gain is visible
     assert demo[condition].accuracy["literal"][5] < curve[5] - 10
@@ -38,21 +38,24 @@ def test_switches_are_relearned_quickly(demo, condition):
 
 def test_random_error_reaches_near_the_ceiling(demo):
     error = demo["error"]
-    assert np.mean(error.accuracy["adaptive"][5:]) >= 70
+    assert np.mean(error.accuracy["adaptive"][5:]) >= 74.5
     assert np.mean(error.accuracy["literal"][5:]) < np.mean(error.accuracy["adaptive"][5:])
     assert 73 <= np.mean(error.ceiling) <= 77
 
 
 def test_random_delay_reaches_the_target_under_the_ceiling(demo):
     delay = demo["delay"]
-    assert np.mean(delay.accuracy["adaptive"][5:]) >= 46
+    assert np.mean(delay.accuracy["adaptive"][5:]) >= 49.0
     assert 48 <= np.mean(delay.ceiling) <= 52
     assert max(delay.accuracy["adaptive"]) < max(delay.ceiling)
 
 
 def test_libraries_are_small_like_the_paper(demo):
-    # the paper: 2155 patterns for the simple system
-    assert 1000 <= demo["simple"].patterns <= 3000
+    # the paper: 2155 patterns for the simple system, counted at parse boundaries
+    assert 1000 <= demo["simple"].literal_patterns <= 3000
+    # every occurrence of every context up to 6 steps: a few times more, still small
+    assert demo["simple"].patterns <= 6 * demo["simple"].literal_patterns
+    assert demo["simple"].library_file_bytes / demo["simple"].patterns < 20
 
 
 def test_cli_writes_figure_summary_and_logs(tmp_path):

@@ -1,170 +1,236 @@
-"""The pattern library: the paper's example, a reference model, forgetting, determinism."""
+"""The pattern library: every occurrence counted (against a dict model), views, forgetting,
+exact merging, determinism, export round trips."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
-from naive import NaiveLibrary
+from naive import NaiveOccurrences
+from slearn.errors import ParameterError, SlearnError
 from slearn.library import PatternLibrary
+from slearn.merge import merge_libraries
+from slearn.storage import LoadedLibrary, library_params
 from slearn.stream import Episode
-
-L, R = 0, 1
-
-
-def pointer_episode(text: str) -> Episode:
-    """``"3 R 4 R 5"`` as an episode; position k is symbol k + 10."""
-    words = text.split()
-    actions = [{"L": L, "R": R}[w] for w in words[1::2]]
-    observations = [int(w) + 10 for w in words[2::2]]
-    return Episode.from_pairs([int(words[0]) + 10], actions, observations)
+from slearn.tokens import ACTION
+from slearn.vocabulary import ACTION as ACTION_ROLE
+from slearn.vocabulary import OBSERVATION, Vocabulary
 
 
-def spelled(library: PatternLibrary) -> dict[str, int]:
-    out = {}
-    for pattern in library.iter_patterns():
-        words = []
-        for i, token in enumerate(pattern.tokens):
-            (symbol,) = library.tokens.symbols(token)
-            words.append(str(symbol - 10) if i % 2 == 0 else "LR"[symbol])
-        out[" ".join(words)] = pattern.count
-    return out
+def two_channel_vocabulary() -> Vocabulary:
+    """``cmd`` (action: 0, 1), ``a`` (observation: 2..5), ``b`` (observation: 6..9)."""
+    vocabulary = Vocabulary()
+    vocabulary.add_channel("cmd", ACTION_ROLE)
+    vocabulary.add_channel("a", OBSERVATION)
+    vocabulary.add_channel("b", OBSERVATION)
+    for channel, values in (("cmd", "LR"), ("a", range(4)), ("b", range(4))):
+        for value in values:
+            vocabulary.symbol(channel, value)
+    return vocabulary
 
 
-def test_paper_example_is_cut_into_patterns_sharing_boundaries():
+VIEW_OF = {s: 0 for s in range(2, 6)} | {s: 1 for s in range(6, 10)}
+
+
+def steps_strategy(max_steps=25):
+    step = st.tuples(st.lists(st.sampled_from([0, 1]), max_size=1).map(tuple),
+                     st.lists(st.sampled_from(list(range(2, 10))), max_size=2, unique_by=lambda s: VIEW_OF[s])
+                     .map(lambda xs: tuple(sorted(xs))))
+    return st.lists(step, min_size=1, max_size=max_steps)
+
+
+def decoded(library: PatternLibrary) -> dict:
+    """``(view, context, outcome) -> [count, last_seen]`` with tokens as ``(kind, symbols)``."""
+    def name(token):
+        kind = "A" if library.tokens.kind(token) == ACTION else "O"
+        return kind, library.tokens.symbols(token)
+    return {(p.view, tuple(name(t) for t in p.context), name(p.outcome)): [p.count, p.last_seen]
+            for p in library.patterns()}
+
+
+class OccurrencesAgainstNaive(RuleBasedStateMachine):
+    """Random two-channel episodes learned by the library and by the dict model."""
+
+    def __init__(self):
+        super().__init__()
+        self.library = PatternLibrary(max_length=2, vocabulary=two_channel_vocabulary())
+        self.naive = NaiveOccurrences(4, VIEW_OF, has_actions=True)
+
+    @rule(steps=steps_strategy())
+    def learn_episode(self, steps):
+        steps = [((), obs) if i == 0 else (acts, obs) for i, (acts, obs) in enumerate(steps)]
+        self.library.learn(Episode.from_steps(steps))
+        self.naive.learn(steps)
+
+    @invariant()
+    def same_patterns_counts_and_recency(self):
+        assert decoded(self.library) == self.naive.patterns
+        assert self.library.clock == self.naive.clock
+
+    @invariant()
+    def fresh_counts_equal_counts_without_an_alarm(self):
+        export = self.library.export()
+        for v, epoch in enumerate(self.library.mixer.epoch if self.library.mixer is not None else []):
+            if epoch == 0:
+                rows = export["view"] == v
+                assert np.array_equal(export["fresh"][rows], export["count"][rows])
+
+
+TestOccurrencesAgainstNaive = OccurrencesAgainstNaive.TestCase
+TestOccurrencesAgainstNaive.settings = settings(max_examples=40, stateful_step_count=8, deadline=None)
+
+
+def pointer_like(rng: np.random.Generator, n: int, bins: int = 8) -> Episode:
+    """A deterministic walk (``R`` +1, ``L`` -1) over ``bins`` positions, symbols 2.."""
+    commands = rng.integers(0, 2, n)
+    positions = (rng.integers(bins) + np.cumsum(np.where(commands == 1, 1, -1))) % bins
+    start = (positions[0] - (1 if commands[0] else -1)) % bins
+    return Episode.from_pairs([int(start) + 2], commands, positions + 2)
+
+
+def test_a_deterministic_walk_is_predicted_perfectly_once_seen():
     library = PatternLibrary()
-    library.learn(pointer_episode("3 R 4 R 5 L 4 R 5 L 4 L 3 L 2"))
-    assert spelled(library) == {
-        "3 R 4": 1, "4 R 5": 2, "5 L 4": 1, "4 R 5 L 4": 1, "4 L 3": 1, "3 L 2": 1,
-    }
+    episode = pointer_like(np.random.default_rng(0), 4000)
+    codes = library.encode(episode)
+    reports = library.run(codes, learn=True, record=True)
+    right = reports.predicted[2000:] == codes.token[2000:]
+    assert right.all()
 
 
-def test_paper_example_patterns_seen_again_grow():
-    library = PatternLibrary()
-    for text in ("3 R 4 R 5 L 4 R 5 L 4 L 3 L 2", "3 R 4 R 5 L 4 R 5 R 6", "5 L 4 R 5 R 6"):
-        library.learn(pointer_episode(text))
-    patterns = spelled(library)
-    for grown in ("3 R 4 R 5", "4 R 5 L 4", "5 L 4 R 5 R 6"):
-        assert grown in patterns
-    assert patterns["5 L 4 R 5"] == 2  # counted when it was extended to 5 L 4 R 5 R 6
+def test_every_context_up_to_max_length_is_stored():
+    library = PatternLibrary(max_length=3)
+    library.learn(Episode.from_pairs([2], [0, 1, 0, 1], [3, 2, 3, 2]))
+    lengths = sorted({len(p.context) for p in library.patterns()})
+    assert lengths == [1, 2, 3, 4, 5, 6]  # actions alone up to three whole steps before
 
 
-def test_max_length_caps_patterns_and_restarts_at_the_boundary():
+def test_no_action_streams_use_observations_only():
     library = PatternLibrary(max_length=2)
-    for _ in range(5):
-        library.learn(pointer_episode("1 R 2 R 3 R 4 R 5 R 6"))
-    assert max(p.n_steps for p in library.iter_patterns()) == 2
-    assert spelled(library)["1 R 2 R 3"] >= 3
-
-
-def test_episodes_are_not_glued_together():
-    library = PatternLibrary()
-    library.learn(pointer_episode("1 R 2"))
-    library.learn(pointer_episode("1 R 2"))
-    library.learn(pointer_episode("2 R 3"))
-    # the match open at the end of an episode is counted, and the next one starts afresh
-    assert spelled(library) == {"1 R 2": 2, "2 R 3": 1}
-
-
-def random_tokens(rng: np.random.Generator, n_steps: int, n_obs: int, n_act: int):
-    obs = rng.integers(0, n_obs, n_steps + 1)
-    act = rng.integers(0, n_act, n_steps) + 1000
-    return Episode.from_pairs(obs[:1], act, obs[1:])
+    library.learn(Episode.from_steps([((), (s,)) for s in (5, 6, 5, 6, 5)]))
+    assert not library.has_actions
+    assert {len(p.context) for p in library.patterns()} == {1, 2}
+    assert all(library.tokens.kind(t) != ACTION for p in library.patterns() for t in p.context)
 
 
 def test_same_stream_gives_the_same_library_byte_for_byte():
     exports = []
     for _ in range(2):
-        library = PatternLibrary(max_length=4)
-        library.learn(random_tokens(np.random.default_rng(7), 5000, 6, 2))
+        library = PatternLibrary(max_length=3)
+        library.learn(pointer_like(np.random.default_rng(7), 3000))
         exports.append(library.export())
     for key in exports[0]:
         assert exports[0][key].tobytes() == exports[1][key].tobytes()
 
 
-class LibraryAgainstNaive(RuleBasedStateMachine):
-    """Random episodes learned by both the library and the dict-of-tuples model."""
-
-    def __init__(self):
-        super().__init__()
-        self.library = PatternLibrary(max_length=3)
-        self.naive = NaiveLibrary(max_length=3)
-
-    @rule(obs=st.lists(st.integers(0, 3), min_size=1, max_size=30), data=st.data())
-    def learn_episode(self, obs, data):
-        actions = data.draw(st.lists(st.integers(100, 101), min_size=len(obs) - 1, max_size=len(obs) - 1))
-        episode = Episode.from_pairs(obs[:1], actions, obs[1:])
-        self.library.learn(episode)
-        self.naive.learn(self.library.tokens.tokenize(episode).tolist())
-
-    @invariant()
-    def same_patterns_counts_and_recency(self):
-        got = {p.tokens: [p.count, p.last_seen] for p in self.library.iter_patterns()}
-        assert got == self.naive.patterns
-        assert len(self.library) == len(self.naive.patterns)
-        assert self.library.clock == self.naive.clock
-
-    @invariant()
-    def prefix_closed(self):
-        patterns = {p.tokens for p in self.library.iter_patterns()}
-        for tokens in patterns:
-            if len(tokens) > 3:
-                assert tokens[:-2] in patterns
+def naming(n: int = 40) -> Vocabulary:
+    """Symbols 0, 1 as actions ``cmd``, 2.. as observations ``pos``."""
+    vocabulary = Vocabulary()
+    vocabulary.add_channel("cmd", ACTION_ROLE)
+    vocabulary.add_channel("pos", OBSERVATION)
+    for s in range(n):
+        vocabulary.symbol("cmd" if s < 2 else "pos", s)
+    return vocabulary
 
 
-TestLibraryAgainstNaive = LibraryAgainstNaive.TestCase
-TestLibraryAgainstNaive.settings = settings(max_examples=60, stateful_step_count=15, deadline=None)
+def loaded(library: PatternLibrary, vocabulary: Vocabulary | None = None) -> LoadedLibrary:
+    return LoadedLibrary(library, vocabulary or naming(), None, library_params(library), {})
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(16, 200))
-def test_forgetting_bounds_the_library_and_keeps_it_prefix_closed(seed, bound):
-    library = PatternLibrary(max_length=4, max_patterns=bound)
-    library.learn(random_tokens(np.random.default_rng(seed), 3000, 8, 3))
-    patterns = {p.tokens: p.count for p in library.iter_patterns()}
-    assert len(patterns) <= bound
-    assert library.forgotten > 0
-    for tokens in patterns:
-        if len(tokens) > 3:
-            assert tokens[:-2] in patterns
+@settings(max_examples=25, deadline=None)
+@given(st.lists(steps_strategy(40), min_size=2, max_size=5), st.integers(1, 4))
+def test_merging_separately_learned_libraries_equals_one_run(episodes, cut):
+    cut = min(cut, len(episodes) - 1)
+    vocabulary = two_channel_vocabulary()
+
+    def learned(chosen):
+        library = PatternLibrary(max_length=2, vocabulary=vocabulary)
+        for steps in chosen:
+            library.learn(Episode.from_steps(steps))
+        return library
+
+    one = learned(episodes)
+    merged = merge_libraries(loaded(learned(episodes[:cut]), vocabulary),
+                             loaded(learned(episodes[cut:]), vocabulary)).library
+    a, b = one.export(), merged.export()
+    for key in ("view", "pattern_offsets", "pattern_tokens", "count", "last_seen"):
+        assert np.array_equal(a[key], b[key]), key
+    assert merged.clock == one.clock
 
 
-def test_forgetting_drops_rare_patterns_first():
-    library = PatternLibrary(max_length=3, max_patterns=40)
-    for _ in range(5):
-        library.learn(pointer_episode("1 R 2"))  # the oldest pattern, but a frequent one
-    rng = np.random.default_rng(1)
-    for _ in range(10):
-        library.learn(random_tokens(rng, 30, 12, 3))
-    assert library.forgotten > 100
-    assert "1 R 2" in spelled_safe(library)
-    assert min(p.last_seen for p in library.iter_patterns() if p.count == 1) > 30
-
-
-def spelled_safe(library):
-    out = set()
-    for pattern in library.iter_patterns():
-        symbols = [library.tokens.symbols(t) for t in pattern.tokens]
-        if all(len(s) == 1 for s in symbols) and all(s[0] in (L, R) for s in symbols[1::2]):
-            words = [str(s[0] - 10) if i % 2 == 0 else "LR"[s[0]] for i, s in enumerate(symbols)]
-            out.add(" ".join(words))
-    return out
+def test_merge_keeps_the_order_of_first_sight_and_shifts_recency():
+    first, second = PatternLibrary(max_length=1), PatternLibrary(max_length=1)
+    first.learn(Episode.from_pairs([2], [0], [3]))
+    second.learn(Episode.from_pairs([2], [0], [3]))
+    second.learn(Episode.from_pairs([3], [1], [2]))
+    merged = merge_libraries(loaded(first), loaded(second)).library
+    counts = {(p.context, p.outcome): (p.count, p.last_seen) for p in merged.patterns()}
+    assert len(merged.patterns()) == 4
+    assert merged.clock == first.clock + second.clock == 6  # steps, the first reading included
+    assert max(c for c, _ in counts.values()) == 2
+    assert max(seen for _, seen in counts.values()) == 5  # second's last step, after first's two
 
 
 def test_export_round_trip_keeps_patterns_and_learning_state():
-    library = PatternLibrary(max_length=4)
     rng = np.random.default_rng(3)
-    library.learn(random_tokens(rng, 2000, 5, 2))
-    again = PatternLibrary.from_export(library.export(), library.tokens, library.clock, 4)
-    assert list(again.iter_patterns()) == list(library.iter_patterns())
-    follow_up = random_tokens(rng, 500, 5, 2)
+    library = PatternLibrary(max_length=3)
+    library.learn(pointer_like(rng, 2000))
+    again = PatternLibrary.from_export(library.export(), tokens=library.tokens, clock=library.clock,
+                                       view_names=library.view_names, mixer=library.mixer,
+                                       max_length=3, has_actions=True)
+    assert again.patterns() == library.patterns()
+    follow_up = pointer_like(rng, 500)
     library.learn(follow_up)
     again.learn(follow_up)
-    assert list(again.iter_patterns()) == list(library.iter_patterns())
+    assert again.patterns() == library.patterns()
 
 
-def test_bad_parameters_are_refused():
-    with pytest.raises(ValueError):
-        PatternLibrary(max_length=0)
-    with pytest.raises(ValueError):
-        PatternLibrary(max_patterns=3)
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(16, 300))
+def test_forgetting_bounds_the_library_and_keeps_contexts_consistent(seed, bound):
+    library = PatternLibrary(max_length=3, max_patterns=bound)
+    rng = np.random.default_rng(seed)
+    library.learn(Episode.from_pairs([2], rng.integers(0, 2, 1500), rng.integers(2, 9, 1500)))
+    assert len(library) <= bound
+    assert library.forgotten > 0
+    by_context = {(p.view, p.context, p.outcome): p.count for p in library.patterns()}
+    for (view, context, outcome), count in by_context.items():
+        if len(context) > 1:  # a longer context is never kept without its shorter one
+            assert by_context.get((view, context[1:], outcome), 0) >= count
+
+
+def test_forgetting_drops_rare_patterns_first():
+    library = PatternLibrary(max_length=2, max_patterns=60)
+    for _ in range(20):
+        library.learn(Episode.from_pairs([2], [0], [3]))  # old but frequent
+    rng = np.random.default_rng(1)
+    library.learn(Episode.from_pairs([4], rng.integers(0, 2, 400), rng.integers(4, 20, 400)))
+    assert library.forgotten > 100
+    assert any(p.count == 20 for p in library.patterns())
+
+
+def test_frozen_runs_change_nothing():
+    library = PatternLibrary()
+    library.learn(pointer_like(np.random.default_rng(4), 3000))
+    before = (library.export(), [a.copy() for a in library.mixer], library.clock)
+    codes = library.encode(pointer_like(np.random.default_rng(5), 500))
+    library.run(codes, learn=False, record=True)
+    after = (library.export(), library.mixer, library.clock)
+    for key in before[0]:
+        assert np.array_equal(before[0][key], after[0][key])
+    for a, b in zip(before[1], after[1]):
+        assert np.array_equal(a, b)
+    assert before[2] == after[2]
+
+
+def test_bad_parameters_are_refused_with_a_slearn_error_that_is_a_value_error():
+    for kwargs in ({"max_length": 0}, {"max_length": 10 ** 9}, {"max_patterns": 3},
+                   {"max_length": True}, {"max_patterns": 10 ** 20}):
+        with pytest.raises(ParameterError) as err:
+            PatternLibrary(**kwargs)
+        assert isinstance(err.value, ValueError) and isinstance(err.value, SlearnError)
+
+
+def test_a_symbol_used_as_action_and_observation_needs_a_vocabulary():
+    library = PatternLibrary()
+    with pytest.raises(ParameterError):
+        library.learn(Episode.from_pairs([1], [1], [2]))

@@ -6,11 +6,10 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
+from fixtures import online_correct
 from slearn.cli import main
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
-from slearn.online import run_online
-from slearn.predictor import Predictor
 from slearn.recorders.stream import convert_stream, detect_format, stream_spec
 from slearn.serialize import read_episodes
 from slearn.spec import load_spec
@@ -138,7 +137,7 @@ def test_cli_writes_files_spec_and_json_summary(tmp_path):
     assert summary["channels"] == {"pos": "observation", "cmd": "action"}
     library = PatternLibrary()
     [(_, episode, _)] = read_episodes(summary["paths"], load_spec(spec_path), Vocabulary())
-    assert run_online(Predictor(library), episode).correct[-20:].all()
+    assert online_correct(library, episode)[-20:].all()
     again = CliRunner().invoke(main, args)
     assert again.exit_code == 1 and "already exists: pass --force" in again.stderr
     assert CliRunner().invoke(main, args + ["--force"]).exit_code == 0
