@@ -176,6 +176,9 @@ class PatternLibrary:
                 raise ParameterError("the library has learned nothing yet")
             self._has_actions = bool(np.any(episode.n_actions > 0)) if self.vocabulary is None \
                 else any(role != OBSERVATION_ROLE for role in self.vocabulary.roles.values())
+        if not self._has_actions and np.any(episode.n_actions > 0):
+            raise ParameterError("this library learned a stream without actions; an episode with "
+                                 "actions needs a library made with has_actions=True")
         self.prepare()
         if self.vocabulary is None:
             mapping = views.joint_mapping(episode)

@@ -44,7 +44,8 @@ KINDS = ("frequent", "recent", "fresh")
 N_KINDS = 3
 ETA = 0.1
 SPREAD = 5.0
-FALSE_ALARM = 1e-4
+FALSE_ALARM = 1e-6
+BURN_IN = 32
 _THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
 _TIE = np.array([0.0, 2e-9, 4e-9])  # prior log-weight per kind: FRESH, then RECENT, win ties
 _ASLEEP = -1e30  # FRESH experts before the first epoch
@@ -132,13 +133,14 @@ def update(w, cand, n, truth):
 
 
 @numba.njit(cache=True, inline="always")
-def trusted_frequency(w, cand, n):
-    """The outcome of the frequency expert (all-time or fresh) of largest weight, or -1."""
+def trusted_frequency(w, cand, n, epoch):
+    """The outcome of the frequency expert of largest weight, or -1: all-time counts before
+    the first alarm, fresh counts after it (all-time counts are known stale by then)."""
+    kind = FREQUENT if epoch == 0 else FRESH
     best_w, out = -np.inf, -1
     for k in range(1, n + 1):
-        for kind in (FREQUENT, FRESH):
-            if cand[k, kind] >= 0 and w[k - 1, kind] >= best_w:
-                best_w, out = w[k - 1, kind], cand[k, kind]
+        if cand[k, kind] >= 0 and w[k - 1, kind] >= best_w:
+            best_w, out = w[k - 1, kind], cand[k, kind]
     return out
 
 
@@ -152,10 +154,11 @@ def detect(w, det, said, truth):
     if said < 0:
         return False
     miss = said != truth
-    q0 = (det[MISSES] + 0.5) / (det[TRIALS] + 1.0)
-    q1 = 0.5 * (1.0 + q0)
-    step = np.log(q1 / q0) if miss else np.log((1.0 - q1) / (1.0 - q0))
-    det[CUSUM] = max(0.0, det[CUSUM] + step)
+    if det[TRIALS] >= BURN_IN:
+        q0 = (det[MISSES] + 0.5) / (det[TRIALS] + 1.0)
+        q1 = 0.5 * (1.0 + q0)
+        step = np.log(q1 / q0) if miss else np.log((1.0 - q1) / (1.0 - q0))
+        det[CUSUM] = max(0.0, det[CUSUM] + step)
     det[MISSES] += 1.0 if miss else 0.0
     det[TRIALS] += 1.0
     if det[CUSUM] < _THRESHOLD:
@@ -163,6 +166,11 @@ def detect(w, det, said, truth):
     det[CUSUM] = 0.0
     det[MISSES] = 0.0
     det[TRIALS] = 0.0
+    leader = -np.inf
+    for k in range(w.shape[0]):
+        for kind in range(N_KINDS):
+            leader = max(leader, w[k, kind])
     for k in range(w.shape[0]):
         w[k, FRESH] = max(w[k, FREQUENT], w[k, FRESH]) + (_TIE[FRESH] - _TIE[FREQUENT])
+        w[k, FREQUENT] = leader - SPREAD  # the all-time counts are what the alarm found stale
     return True

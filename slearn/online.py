@@ -149,7 +149,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                             count, fresh, last_seen, outcome, nodes, m)
                 if learn:
                     update(w, cand, m, x)
-                    if detect(w, detector[v], trusted_frequency(w, cand, m), x):
+                    if detect(w, detector[v], trusted_frequency(w, cand, m, epoch[v]), x):
                         epoch[v] += 1
                     ep = epoch[v]
                     for k in range(1, n + 1):
