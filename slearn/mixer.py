@@ -166,11 +166,6 @@ def detect(w, det, said, truth):
     det[CUSUM] = 0.0
     det[MISSES] = 0.0
     det[TRIALS] = 0.0
-    leader = -np.inf
-    for k in range(w.shape[0]):
-        for kind in range(N_KINDS):
-            leader = max(leader, w[k, kind])
     for k in range(w.shape[0]):
         w[k, FRESH] = max(w[k, FREQUENT], w[k, FRESH]) + (_TIE[FRESH] - _TIE[FREQUENT])
-        w[k, FREQUENT] = leader - SPREAD  # the all-time counts are what the alarm found stale
     return True
