@@ -32,7 +32,7 @@ def step_correct(library, episode: Episode) -> np.ndarray:
     """Predict then learn every step of ``episode``; per step after the first, whether every
     observation of the step was predicted right (abstentions count as wrong)."""
     codes = library.encode(episode)
-    reports = library.run(codes, learn=True, record=True)
+    reports = library.run(codes, learn=True, record=True, top_k=1)
     wrong = reports.context & (reports.predicted != codes.token)
     step_of = np.repeat(np.arange(len(codes)), np.diff(codes.offsets))
     bad = np.zeros(len(codes), bool)

@@ -32,7 +32,6 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Iterator
 
-import numba
 import numpy as np
 
 from slearn.errors import InputError, TruncatedLogWarning
@@ -49,6 +48,7 @@ from slearn.stream import Episode
 from slearn.tokens import OBSERVATION, TokenTable, _intern
 from slearn.views import StepCodes
 from slearn.vocabulary import Vocabulary
+from slearn._jit import kernel
 
 SCHEMA = "slearn.replay/2"
 """Name and version of the JSON document (:meth:`Evaluation.to_dict`)."""
@@ -328,7 +328,7 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
                           evaluated, 0, truth)
 
 
-@numba.njit(cache=True)
+@kernel
 def _join_steps(table, lib, offsets, tokens, use, buf):
     """Per step, the token of the joined symbols of its used reports: -2 with none used,
     -1 when every used report abstained (a partial prediction joins what was said)."""

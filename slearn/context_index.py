@@ -16,11 +16,11 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import numba
 import numpy as np
 
 from slearn import hashtrie
 from slearn.hashtrie import child_or_add, pair_key, path_tokens, probe
+from slearn._jit import helper, kernel
 
 ContextIndex = namedtuple(
     "ContextIndex", "trie head best newest total outcome weight last_seen next size entry_keys entry_vals")
@@ -83,7 +83,7 @@ def nbytes(index: ContextIndex) -> int:
     return sum(a.nbytes for a in (*index.trie[:4], *index[1:10], *index[11:]))
 
 
-@numba.njit(cache=True)
+@kernel
 def _rehash_entries(index, n_nodes):
     for node in range(n_nodes):
         e = index.head[node]
@@ -95,7 +95,7 @@ def _rehash_entries(index, n_nodes):
             e = index.next[e]
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def find_entry(index, node, outcome):
     """The entry of ``outcome`` after the context at ``node``, or -1."""
     key = pair_key(node, outcome)
@@ -103,7 +103,7 @@ def find_entry(index, node, outcome):
     return index.entry_vals[s] if index.entry_keys[s] == key else -1
 
 
-@numba.njit(cache=True)
+@helper
 def _entry(index, node, outcome):
     """The entry of ``outcome`` after ``node``, created (at the head of its list) if missing."""
     key = pair_key(node, outcome)
@@ -120,7 +120,7 @@ def _entry(index, node, outcome):
     return e
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome, delta, last_seen):
     """Add ``delta`` to the weight of ``outcome`` after the context at ``node``.
 
@@ -139,7 +139,7 @@ def _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome,
         newest[node] = e
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def ranks_above(weight, seen, outcome_of, a, b):
     """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
     if weight[a] != weight[b]:
@@ -149,13 +149,13 @@ def ranks_above(weight, seen, outcome_of, a, b):
     return outcome_of[a] < outcome_of[b]
 
 
-@numba.njit(cache=True)
+@helper
 def add_pattern(index, tokens, length, delta, last_seen):
     """Credit every (context, outcome) inside the pattern ``tokens[:length]``."""
     add_extension(index, tokens, length, delta, delta, last_seen)
 
 
-@numba.njit(cache=True)
+@helper
 def add_extension(index, tokens, length, prefix_delta, last_delta, last_seen):
     """Credit the pattern ``tokens[:length]``: ``prefix_delta`` to the contexts inside its
     prefix (one step shorter), ``last_delta`` to those ending at its last step. A new
@@ -173,7 +173,7 @@ def add_extension(index, tokens, length, prefix_delta, last_delta, last_seen):
                         step_delta, last_seen)
 
 
-@numba.njit(cache=True)
+@kernel
 def _add_library(index, trie, count, last_seen, buf, start, margin):
     """Index patterns from node ``start`` on; return where it stopped for lack of room."""
     for node in range(start, trie.size[0]):

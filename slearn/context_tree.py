@@ -22,11 +22,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from slearn import hashtable
 from slearn.hashtable import EMPTY, find, probe
+from slearn._jit import helper
 
 
 class Tree(NamedTuple):
@@ -116,13 +116,13 @@ def nbytes(tree: Tree) -> int:
 
 # --- compiled helpers on raw arrays (inlined into the kernels that read a Tree) ----------
 
-@numba.njit(cache=True, inline="always")
+@helper
 def child(node_slots, parent, token, node, tok):
     """The child of ``node`` along ``tok``, or -1."""
     return find(node_slots, parent, token, node, tok)
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def child_or_add(node_slots, parent, token, size, node, tok):
     """The child of ``node`` along ``tok``, added when missing (room is the caller's)."""
     s = probe(node_slots, parent, token, node, tok)
@@ -137,7 +137,7 @@ def child_or_add(node_slots, parent, token, size, node, tok):
     return new
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, out):
     """The entry of ``out`` after ``node``, added when missing (room is the caller's)."""
     s = probe(entry_slots, owner, outcome, node, out)
@@ -154,7 +154,7 @@ def entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, out):
     return e
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def refresh(first, nxt, fresh, fresh_best, epoch, node, current):
     """Bring a node's fresh counts into epoch ``current`` (zero them if older)."""
     if epoch[node] != current:
@@ -166,7 +166,7 @@ def refresh(first, nxt, fresh, fresh_best, epoch, node, current):
         epoch[node] = current
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def credit(count, last_seen, fresh, best, newest, fresh_best, e, node, clock):
     """Count one occurrence of entry ``e`` (of ``node``) at ``clock``."""
     count[e] += 1
@@ -181,7 +181,7 @@ def credit(count, last_seen, fresh, best, newest, fresh_best, e, node, clock):
         fresh_best[node] = e
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def node_total(first, nxt, weight, node):
     """The summed ``weight`` (count or fresh) of a node's entries."""
     total = 0
@@ -192,7 +192,7 @@ def node_total(first, nxt, weight, node):
     return total
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def ranks_above(weight, last_seen, outcome, a, b):
     """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
     if weight[a] != weight[b]:

@@ -11,8 +11,8 @@ records are never deleted one by one: a structure that forgets rebuilds its tabl
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+from slearn._jit import helper, kernel
 
 EMPTY = -1
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -28,14 +28,14 @@ def new_slots(capacity: int) -> np.ndarray:
     return np.full(slots_for(capacity), EMPTY, np.int32)
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def home(slots, a, b):
     """The first slot probed for the pair ``(a, b)``."""
     key = (np.uint64(a) << np.uint64(32)) | np.uint64(b)
     return np.int64((key * _GOLDEN) >> np.uint64(32)) & (len(slots) - 1)
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def probe(slots, a_of, b_of, a, b):
     """The slot holding the record of ``(a, b)``, or the empty slot it would take."""
     mask = len(slots) - 1
@@ -47,13 +47,13 @@ def probe(slots, a_of, b_of, a, b):
         s = (s + 1) & mask
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def find(slots, a_of, b_of, a, b):
     """The record of ``(a, b)``, or -1."""
     return slots[probe(slots, a_of, b_of, a, b)]
 
 
-@numba.njit(cache=True)
+@kernel
 def rebuild(slots, a_of, b_of, first, n):
     """Empty ``slots`` and insert records ``first..n-1`` (a root record has ``a_of == -1``)."""
     slots[:] = EMPTY

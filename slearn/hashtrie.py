@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import numba
 import numpy as np
+from slearn._jit import helper, kernel
 
 Trie = namedtuple("Trie", "parent token keys vals size")
 """``parent``/``token``: int32 per node; ``keys`` int64 and ``vals`` int32 per hash slot
@@ -70,13 +70,13 @@ def rebuilt(parent: np.ndarray, token: np.ndarray, n: int) -> Trie:
     return trie
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def pair_key(high, low):
     """The 64-bit key of a pair of non-negative 32-bit ids."""
     return (np.int64(high) << 32) | np.int64(low)
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def probe(keys, key):
     """The slot holding ``key`` in an open-addressing table, or the empty slot it would take."""
     mask = len(keys) - 1
@@ -86,7 +86,7 @@ def probe(keys, key):
     return s
 
 
-@numba.njit(cache=True)
+@kernel
 def _index_all(parent, token, keys, vals, n):
     for node in range(1, n):
         key = pair_key(parent[node], token[node])
@@ -95,7 +95,7 @@ def _index_all(parent, token, keys, vals, n):
         vals[s] = node
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def child(trie, node, tok):
     """The child of ``node`` along ``tok``, or -1."""
     key = pair_key(node, tok)
@@ -103,7 +103,7 @@ def child(trie, node, tok):
     return trie.vals[s] if trie.keys[s] == key else -1
 
 
-@numba.njit(cache=True)
+@helper
 def child_or_add(trie, node, tok):
     """The child of ``node`` along ``tok``, created when missing (capacity is the caller's)."""
     key = pair_key(node, tok)
@@ -119,7 +119,7 @@ def child_or_add(trie, node, tok):
     return np.int32(new)
 
 
-@numba.njit(cache=True)
+@helper
 def path_tokens(trie, node, out):
     """Write the tokens from the root to ``node`` into ``out``; return their number."""
     depth = 0

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from slearn import context_tree, views
@@ -41,6 +40,7 @@ from slearn.tokens import ACTION, OBSERVATION, TokenTable
 from slearn.views import NO_VIEW, StepCodes, ViewState
 from slearn.vocabulary import OBSERVATION as OBSERVATION_ROLE
 from slearn.vocabulary import Vocabulary
+from slearn._jit import kernel
 
 DEFAULT_MAX_LENGTH = 6
 """Steps of history a context spans at most (an action and an observation each)."""
@@ -327,7 +327,7 @@ def check_parameters(max_length: int, max_patterns: int | None) -> None:
         raise ParameterError(f"max_patterns must be an integer in 16..2**40, not {max_patterns!r}")
 
 
-@numba.njit(cache=True)
+@kernel
 def _depths(parent, n):
     depth = np.zeros(n, np.int32)
     for node in range(n):
@@ -362,21 +362,21 @@ def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def _keep_ancestors(parent, keep):
     for node in range(len(keep) - 1, -1, -1):
         if keep[node] and parent[node] >= 0:
             keep[parent[node]] = True
 
 
-@numba.njit(cache=True)
+@kernel
 def _link_entries(owner, first, nxt, m):
     for e in range(m):  # newest-added entry first, as when learning
         nxt[e] = first[owner[e]]
         first[owner[e]] = e
 
 
-@numba.njit(cache=True)
+@kernel
 def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fresh_best, n):
     """Recompute each node's best, newest and freshest entry from the entries' numbers."""
     for node in range(n):
@@ -394,7 +394,7 @@ def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fre
         best[node], newest[node], fresh_best[node] = b, w, f
 
 
-@numba.njit(cache=True)
+@kernel
 def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max_tokens):
     offsets = np.zeros(m + 1, np.int64)
     flat = np.empty(m * max_tokens, np.int32)
@@ -421,7 +421,7 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
     return offsets, flat[:pos].copy(), view, fresh_out
 
 
-@numba.njit(cache=True)
+@kernel
 def _import(parent, token, first, node_epoch, node_slots, owner, outcome, count, last_seen, fresh,
             nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen, fresh_in):
     for i in range(len(offsets) - 1):

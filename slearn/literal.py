@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterator
 
-import numba
 import numpy as np
 
 from slearn import context_index, hashtrie, views
@@ -30,6 +29,7 @@ from slearn.stream import Episode
 from slearn.tokens import ACTION, OBSERVATION, TokenTable
 from slearn.online import Reports
 from slearn.views import StepCodes
+from slearn._jit import helper, kernel
 
 JOINT = "*"
 
@@ -314,19 +314,19 @@ def _compacted(array: np.ndarray, kept: np.ndarray, capacity: int) -> np.ndarray
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def _keep_ancestors(parent, keep):
     for node in range(len(keep) - 1, 0, -1):
         if keep[node]:
             keep[parent[node]] = True
 
 
-@numba.njit(cache=True)
+@kernel
 def _anchor(trie, obs_token):
     return child_or_add(trie, 0, obs_token)
 
 
-@numba.njit(cache=True)
+@helper
 def _touch(trie, count, last_seen, index, use_index, node, clock, buf):
     count[node] += 1
     last_seen[node] = clock
@@ -335,7 +335,7 @@ def _touch(trie, count, last_seen, index, use_index, node, clock, buf):
         context_index.add_pattern(index, buf, length, 1, clock)
 
 
-@numba.njit(cache=True)
+@helper
 def learn_step(trie, count, last_seen, index, use_index, n_patterns, state, a_tok, o_tok,
                clock, max_len, buf):
     """Learn one step ``(a_tok, o_tok)``; ``state`` holds the match node and its length."""
@@ -370,7 +370,7 @@ def learn_step(trie, count, last_seen, index, use_index, n_patterns, state, a_to
         state[1] = 0
 
 
-@numba.njit(cache=True)
+@helper
 def has_room(trie, index, use_index, n_patterns, max_len, max_patterns):
     """Whether one more step can be learned without growing or forgetting."""
     if len(trie.parent) - trie.size[0] < _TRIE_MARGIN or n_patterns[0] >= max_patterns:
@@ -382,7 +382,7 @@ def has_room(trie, index, use_index, n_patterns, max_len, max_patterns):
     return True
 
 
-@numba.njit(cache=True)
+@kernel
 def _learn_run(trie, count, last_seen, index, use_index, n_patterns, state, clock, max_len,
                max_patterns, buf, tokens):
     n_steps = (len(tokens) - 1) // 2
@@ -398,7 +398,7 @@ def _learn_run(trie, count, last_seen, index, use_index, n_patterns, state, cloc
     return step > n_steps
 
 
-@numba.njit(cache=True)
+@kernel
 def _export_paths(trie, nodes, max_tokens):
     offsets = np.zeros(len(nodes) + 1, np.int64)
     flat = np.empty(len(nodes) * max_tokens, np.int32)
@@ -410,7 +410,7 @@ def _export_paths(trie, nodes, max_tokens):
     return offsets, flat[:pos].copy()
 
 
-@numba.njit(cache=True)
+@helper
 def _is_prefix(flat, start, end, of_start, of_end):
     if end - start != of_end - of_start:
         return False
@@ -429,7 +429,7 @@ def _node_estimate(offsets: np.ndarray, parents: np.ndarray) -> int:
     return int(np.where(ok, 2, lengths).sum()) + 64 * _TRIE_MARGIN
 
 
-@numba.njit(cache=True)
+@kernel
 def _import_paths(trie, count, last_seen, offsets, flat, parents, counts, recency, nodes, first):
     """Insert patterns ``first..`` and return where it stopped (all done, or the trie is full)."""
     for i in range(first, len(offsets) - 1):

@@ -13,7 +13,6 @@ the library frozen) over steps encoded for one joint view (:mod:`slearn.views`).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from slearn.context_index import find_entry, ranks_above
@@ -22,6 +21,7 @@ from slearn.literal import has_room, learn_step
 from slearn.mixer import FREQUENT
 from slearn.online import Reports, new_reports
 from slearn.views import StepCodes, token_stream
+from slearn._jit import helper, kernel
 
 
 def run_literal(library, codes: StepCodes, learn: bool, record: bool, top_k: int) -> Reports:
@@ -53,7 +53,7 @@ def run_literal(library, codes: StepCodes, learn: bool, record: bool, top_k: int
     return out
 
 
-@numba.njit(cache=True)
+@helper
 def collect(index, tokens, obs_pos, action, max_length, cand):
     """Candidate contexts, shortest first: ``cand[h]`` matches ``h + 1`` history tokens."""
     node = child(index.trie, 0, action)
@@ -69,13 +69,13 @@ def collect(index, tokens, obs_pos, action, max_length, cand):
     return n
 
 
-@numba.njit(cache=True)
-def rank(index, node, outcome, top_tok):
-    """The top-k outcomes of the chosen context: ``outcome`` first, then by rank."""
+@helper
+def rank(index, node, outcome, top_tok, top_entry):
+    """The top-k outcomes of the chosen context: ``outcome`` first, then by rank
+    (``top_entry`` is scratch of the same length)."""
     head, nxt, outs = index.head, index.next, index.outcome
     weight, last_seen = index.weight, index.last_seen
     k = len(top_tok)
-    top_entry = np.empty(k, np.int64)
     top_tok[:] = -1
     top_tok[0] = outcome
     filled = 1
@@ -94,13 +94,14 @@ def rank(index, node, outcome, top_tok):
         e = nxt[e]
 
 
-@numba.njit(cache=True)
+@kernel
 def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clock, max_len,
                 max_patterns, buf, tokens, learn, record, report_at, predicted, length, score,
                 truth_p, top, context):
     n_steps = (len(tokens) - 1) // 2
     step = state[2]
     cand = np.zeros(2 * max_len, np.int32)
+    top_entry = np.empty(top.shape[1], np.int64)
     while step <= n_steps:
         if learn and not has_room(trie, index, True, n_patterns, max_len, max_patterns):
             break
@@ -117,7 +118,7 @@ def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clo
                 score[r] = index.weight[b] / index.total[node]
                 e = find_entry(index, node, truth)
                 truth_p[r] = 0.0 if e == -1 else index.weight[e] / index.total[node]
-                rank(index, node, predicted[r], top[r])
+                rank(index, node, predicted[r], top[r], top_entry)
         if learn:
             learn_step(trie, count, last_seen, index, True, n_patterns, state, action, truth,
                        clock[0], max_len, buf)

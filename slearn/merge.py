@@ -224,12 +224,12 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
     alarmed = np.zeros(n, bool)
     if ma is not None:
         na = len(a.view_names)
-        weights[:na], detector[:na], epoch[:na] = ma.log_weight[:na], ma.detector[:na], ma.epoch[:na]
+        weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
     if mb is not None:
-        untrained = new_mixer(1, k).log_weight[0]
+        untrained = new_mixer(1, k).weight[0]
         for i, j in enumerate(view_map.tolist()):
-            if not np.array_equal(mb.log_weight[i], untrained):
-                weights[j], detector[j] = mb.log_weight[i], mb.detector[i]
+            if not np.array_equal(mb.weight[i], untrained):
+                weights[j], detector[j] = mb.weight[i], mb.detector[i]
             alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
     return Mixer(weights, detector, epoch), alarmed

@@ -9,8 +9,9 @@ contexts of length ``1..K`` found in the tree. Each context offers three *expert
 
 An expert is ``(context length, kind)``; experts whose context was never seen sleep.
 The awake expert of largest weight speaks (Hedge with sleeping experts, Freund et al.
-1997): after the outcome, every awake expert that was wrong loses ``ETA`` of log-weight,
-then the awake experts' total is restored, so sleeping experts neither gain nor lose.
+1997): after the outcome, every awake expert that was wrong loses ``ETA`` of log-weight
+(its weight is multiplied by ``exp(-ETA)``), then the awake experts' total is restored,
+so sleeping experts neither gain nor lose.
 Weights stay within ``SPREAD`` of the leader, so an expert that was poor for a long
 time can take over after a few dozen mistakes of the leader: the mixture tracks the best
 expert when it changes (a switch of dynamics), as fixed-share does.
@@ -36,8 +37,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
+from slearn._jit import helper
 
 FREQUENT, RECENT, FRESH = 0, 1, 2
 KINDS = ("frequent", "recent", "fresh")
@@ -47,30 +48,34 @@ SPREAD = 5.0
 FALSE_ALARM = 1e-6
 BURN_IN = 32
 _THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
-_TIE = np.array([0.0, 2e-9, 4e-9])  # prior log-weight per kind: FRESH, then RECENT, win ties
-_ASLEEP = -1e30  # FRESH experts before the first epoch
+_BETA = float(np.exp(-ETA))
+_FLOOR = float(np.exp(-SPREAD))
+_TIE = np.array([1.0, 1.0 + 2e-9, 1.0 + 4e-9])  # prior weight per kind: FRESH, then RECENT, win ties
+ASLEEP = 0.0  # the weight of FRESH experts before the first epoch
 CUSUM, MISSES, TRIALS = 0, 1, 2
 
 
 class Mixer(NamedTuple):
     """Expert weights and change detectors of all views.
 
-    ``log_weight[v, k - 1, kind]`` is the log-weight of expert ``(k, kind)`` of view ``v``;
-    ``detector[v]`` holds ``(cusum, misses, trials)`` of the view's test since its epoch
-    began; ``epoch[v]`` counts the view's alarms.
+    ``weight[v, k - 1, kind]`` is the weight of expert ``(k, kind)`` of view ``v``, relative
+    to the view's leader (so in ``[exp(-SPREAD), 1]``, or ``ASLEEP``); ``detector[v]`` holds
+    ``(cusum, misses, trials)`` of the view's test since its epoch began; ``epoch[v]``
+    counts the view's alarms.
     """
 
-    log_weight: np.ndarray  # float64 (views, K, 3)
-    detector: np.ndarray    # float64 (views, 3)
-    epoch: np.ndarray       # int32 (views,)
+    weight: np.ndarray    # float64 (views, K, 3)
+    detector: np.ndarray  # float64 (views, 3)
+    epoch: np.ndarray     # int32 (views,)
 
 
 def new_mixer(views: int, max_context: int) -> Mixer:
     """Fresh weights: everything equal but the tie-breaking prior."""
-    log_weight = np.empty((views, max_context, N_KINDS))
-    log_weight[:] = _TIE - 1e-12 * np.arange(max_context)[:, None]
-    log_weight[:, :, FRESH] = _ASLEEP
-    return Mixer(log_weight, np.zeros((views, 3)), np.zeros(views, np.int32))
+    weight = np.empty((views, max_context, N_KINDS))
+    weight[:] = _TIE * (1.0 - 1e-12 * np.arange(max_context))[:, None]
+    weight /= weight.max()
+    weight[:, :, FRESH] = ASLEEP
+    return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32))
 
 
 def with_views(mixer: Mixer, views: int) -> Mixer:
@@ -78,75 +83,67 @@ def with_views(mixer: Mixer, views: int) -> Mixer:
     have = len(mixer.epoch)
     if views <= have:
         return mixer
-    extra = new_mixer(views - have, mixer.log_weight.shape[1])
+    extra = new_mixer(views - have, mixer.weight.shape[1])
     return Mixer(*(np.concatenate((a, b)) for a, b in zip(mixer, extra)))
 
 
-@numba.njit(cache=True, inline="always")
-def select(w, cand, n):
-    """The awake expert of largest weight among contexts ``1..n``: ``(length, kind)``.
-
-    ``w`` is the view's ``(K, 3)`` weights, ``cand[k, kind]`` the expert's outcome or -1.
-    """
-    best_w, best_k, best_kind = -np.inf, 0, 0
+@helper
+def select(w, v, cand, n):
+    """The awake expert of largest weight among contexts ``1..n`` of view ``v``:
+    ``(length, kind)``. ``cand[k, kind]`` is the expert's outcome, or -1 (asleep)."""
+    best_w, best_k, best_kind = -1.0, 0, 0
     for k in range(1, n + 1):
         for kind in range(N_KINDS):
-            if cand[k, kind] >= 0 and w[k - 1, kind] > best_w:
-                best_w, best_k, best_kind = w[k - 1, kind], k, kind
+            if cand[k, kind] >= 0 and w[v, k - 1, kind] > best_w:
+                best_w, best_k, best_kind = w[v, k - 1, kind], k, kind
     return best_k, best_kind
 
 
-@numba.njit(cache=True, inline="always")
-def update(w, cand, n, truth):
-    """Hedge's sleeping-experts step, then the spread bound."""
-    top = -np.inf
-    for k in range(1, n + 1):
-        for kind in range(N_KINDS):
-            if cand[k, kind] >= 0 and w[k - 1, kind] > top:
-                top = w[k - 1, kind]
-    if top == -np.inf:
-        return
+@helper
+def update(w, v, cand, n, truth):
+    """Hedge's sleeping-experts step, then the leader rescaled to 1 and the spread bound."""
     before = 0.0
     after = 0.0
     for k in range(1, n + 1):
         for kind in range(N_KINDS):
             if cand[k, kind] >= 0:
-                before += np.exp(w[k - 1, kind] - top)
+                before += w[v, k - 1, kind]
                 if cand[k, kind] != truth:
-                    w[k - 1, kind] -= ETA
-                after += np.exp(w[k - 1, kind] - top)
-    shift = np.log(before / after)
-    leader = -np.inf
+                    w[v, k - 1, kind] *= _BETA
+                after += w[v, k - 1, kind]
+    if after <= 0.0:
+        return
+    ratio = before / after
     for k in range(1, n + 1):
         for kind in range(N_KINDS):
             if cand[k, kind] >= 0:
-                w[k - 1, kind] += shift
-    for k in range(w.shape[0]):
+                w[v, k - 1, kind] *= ratio
+    leader = 0.0
+    for k in range(w.shape[1]):
         for kind in range(N_KINDS):
-            if w[k, kind] > leader:
-                leader = w[k, kind]
-    floor = leader - SPREAD
-    for k in range(w.shape[0]):
+            leader = max(leader, w[v, k, kind])
+    scale = 1.0 / leader
+    for k in range(w.shape[1]):
         for kind in range(N_KINDS):
-            if w[k, kind] > _ASLEEP and w[k, kind] < floor:
-                w[k, kind] = floor
+            x = w[v, k, kind] * scale
+            w[v, k, kind] = _FLOOR if 0.0 < x < _FLOOR else x
 
 
-@numba.njit(cache=True, inline="always")
-def trusted_frequency(w, cand, n, epoch):
+@helper
+def trusted_frequency(w, v, cand, n, epoch):
     """The outcome of the frequency expert of largest weight, or -1: all-time counts before
     the first alarm, fresh counts after it (all-time counts are known stale by then)."""
     kind = FREQUENT if epoch == 0 else FRESH
-    best_w, out = -np.inf, -1
+    best_w, out = -1.0, -1
     for k in range(1, n + 1):
-        if cand[k, kind] >= 0 and w[k - 1, kind] >= best_w:
-            best_w, out = w[k - 1, kind], cand[k, kind]
+        if cand[k, kind] >= 0 and w[v, k - 1, kind] >= best_w:
+            best_w, out = w[v, k - 1, kind], cand[k, kind]
     return out
 
 
-@numba.njit(cache=True, inline="always")
-def detect(w, det, said, truth):
-    """Feed one prediction of the trusted frequency expert to the CUSUM test.
+@helper
+def detect(w, det, v, said, truth):
+    """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test.
 
     Returns whether the test raised an alarm (and if so, resets it and starts the
     ``FRESH`` experts from their frequency twins).
@@ -154,18 +151,18 @@ def detect(w, det, said, truth):
     if said < 0:
         return False
     miss = said != truth
-    if det[TRIALS] >= BURN_IN:
-        q0 = (det[MISSES] + 0.5) / (det[TRIALS] + 1.0)
+    if det[v, TRIALS] >= BURN_IN:
+        q0 = (det[v, MISSES] + 0.5) / (det[v, TRIALS] + 1.0)
         q1 = 0.5 * (1.0 + q0)
         step = np.log(q1 / q0) if miss else np.log((1.0 - q1) / (1.0 - q0))
-        det[CUSUM] = max(0.0, det[CUSUM] + step)
-    det[MISSES] += 1.0 if miss else 0.0
-    det[TRIALS] += 1.0
-    if det[CUSUM] < _THRESHOLD:
+        det[v, CUSUM] = max(0.0, det[v, CUSUM] + step)
+    det[v, MISSES] += 1.0 if miss else 0.0
+    det[v, TRIALS] += 1.0
+    if det[v, CUSUM] < _THRESHOLD:
         return False
-    det[CUSUM] = 0.0
-    det[MISSES] = 0.0
-    det[TRIALS] = 0.0
-    for k in range(w.shape[0]):
-        w[k, FRESH] = max(w[k, FREQUENT], w[k, FRESH]) + (_TIE[FRESH] - _TIE[FREQUENT])
+    det[v, CUSUM] = 0.0
+    det[v, MISSES] = 0.0
+    det[v, TRIALS] = 0.0
+    for k in range(w.shape[1]):
+        w[v, k, FRESH] = max(w[v, k, FREQUENT], w[v, k, FRESH]) * (_TIE[FRESH] / _TIE[FREQUENT])
     return True

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from slearn.context_tree import (child, child_or_add, credit, entry_or_add, node_total,
                                  ranks_above, refresh)
 from slearn.views import NO_TOKEN
 from slearn.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_frequency, update
+from slearn._jit import helper, kernel
 
 
 class Reports(NamedTuple):
@@ -78,7 +78,7 @@ class Run(NamedTuple):
     episode_start: bool = True  # step 0 of the codes is the first step of an episode
 
 
-@numba.njit(cache=True)
+@kernel
 def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run, out):
     """Run steps ``step..`` of an encoded episode; return the step it stopped before.
 
@@ -88,7 +88,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
-    weights, detector, epoch = mixer.log_weight, mixer.detector, mixer.epoch
+    weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
     recent, filled, held, root = views.recent, views.filled, views.held, views.root
     K = recent.shape[1]
     n_views = len(filled)
@@ -135,7 +135,6 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     fresh_ok = ep > 0 and node_epoch[nd] == ep and fb != -1
                     cand[k, FRESH] = outcome[fb] if fresh_ok else -1
                     m = k
-                w = weights[v]
                 if run.baselines:
                     out.persistence[r] = held[v]
                     if m > 0:
@@ -144,12 +143,12 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     if m >= order:
                         out.frequency[r] = cand[order, FREQUENT]
                 if run.record and m > 0:
-                    k_sel, kind = select(w, cand, m)
+                    k_sel, kind = select(weights, v, cand, m)
                     _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
                             count, fresh, last_seen, outcome, nodes, m)
                 if learn:
-                    update(w, cand, m, x)
-                    if detect(w, detector[v], trusted_frequency(w, cand, m, epoch[v]), x):
+                    update(weights, v, cand, m, x)
+                    if detect(weights, detector, v, trusted_frequency(weights, v, cand, m, epoch[v]), x):
                         epoch[v] += 1
                     ep = epoch[v]
                     for k in range(1, n + 1):
@@ -168,7 +167,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
     return step
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
     """Views that did not report after an action show their last observation again."""
     K = recent.shape[1]
@@ -181,7 +180,7 @@ def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
         filled[v] += 1
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
             outcome, nodes, m):
     """Store the prediction of report ``r``: the outcome, its share, and the ranking."""
@@ -192,22 +191,22 @@ def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, l
     out.kind[r] = kind
     out.score[r] = _share(first, nxt, weight, outcome, node, said, total)
     out.truth_p[r] = _share(first, nxt, weight, outcome, node, truth, total)
-    top, top_p = out.top[r], out.top_p[r]
-    top[0] = said
-    top_p[0] = out.score[r]
+    top, top_p = out.top, out.top_p
+    top[r, 0] = said
+    top_p[r, 0] = out.score[r]
     filled = 1
     for k in range(length, 0, -1):  # the chosen context's ranking, then shorter contexts'
-        if filled >= len(top):
+        if filled >= top.shape[1]:
             break
         w = fresh if (kind == FRESH and k == length) else count
-        filled = _rank_into(top, top_p, filled, first[nodes[k]], nxt, w, last_seen, outcome)
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, w, last_seen, outcome)
     for k in range(length + 1, m + 1):
-        if filled >= len(top):
+        if filled >= top.shape[1]:
             break
-        filled = _rank_into(top, top_p, filled, first[nodes[k]], nxt, count, last_seen, outcome)
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, count, last_seen, outcome)
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _share(first, nxt, weight, outcome, node, token, total):
     if total <= 0:
         return 0.0
@@ -219,11 +218,12 @@ def _share(first, nxt, weight, outcome, node, token, total):
     return 0.0
 
 
-@numba.njit(cache=True, inline="always")
-def _rank_into(top, top_p, filled, head, nxt, weight, last_seen, outcome):
-    """Append one node's outcomes to ``top`` in rank order, skipping those already there."""
+@helper
+def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome):
+    """Append one node's outcomes to row ``r`` of ``top`` in rank order, skipping those
+    already there."""
     start = filled
-    k = len(top)
+    k = top.shape[1]
     total = 0
     e = head
     while e != -1:
@@ -234,25 +234,26 @@ def _rank_into(top, top_p, filled, head, nxt, weight, last_seen, outcome):
         o = outcome[e]
         taken = False
         for i in range(filled):
-            if top[i] == o:
+            if top[r, i] == o:
                 taken = True
                 break
         if not taken and weight[e] > 0:
             pos = filled
-            while pos > start and _ranked_before(e, top[pos - 1], head, nxt, weight, last_seen, outcome):
+            while pos > start and _ranked_before(e, top[r, pos - 1], head, nxt, weight, last_seen,
+                                                 outcome):
                 pos -= 1
             if pos < k:
                 for i in range(min(filled, k - 1), pos, -1):
-                    top[i] = top[i - 1]
-                    top_p[i] = top_p[i - 1]
-                top[pos] = o
-                top_p[pos] = weight[e] / total
+                    top[r, i] = top[r, i - 1]
+                    top_p[r, i] = top_p[r, i - 1]
+                top[r, pos] = o
+                top_p[r, pos] = weight[e] / total
                 filled = min(filled + 1, k)
         e = nxt[e]
     return filled
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _ranked_before(e, other_outcome, head, nxt, weight, last_seen, outcome):
     f = head
     while f != -1:

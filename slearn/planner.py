@@ -38,7 +38,6 @@ from collections import namedtuple
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
-import numba
 import numpy as np
 
 from slearn import context_tree, hashtrie
@@ -46,6 +45,7 @@ from slearn.hashtrie import child, child_or_add
 from slearn.library import PatternLibrary
 from slearn.stream import Step
 from slearn.tokens import ACTION, OBSERVATION
+from slearn._jit import helper, kernel
 
 _NO_STATE = -1
 
@@ -271,12 +271,12 @@ def _best_action(q: np.ndarray, reach: np.ndarray) -> int:
     return int(order[0])
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _child(tree, node, tok):
     return context_tree.child(tree.node_slots, tree.parent, tree.token, node, tok)
 
 
-@numba.njit(cache=True)
+@helper
 def _contexts(tree, root, tokens, obs_pos, action, levels, cand):
     """Contexts that start at an observation, order 0 (no earlier step) first: the nodes of
     ``tokens[..obs_pos] + action`` read backwards at even depths."""
@@ -296,7 +296,7 @@ def _contexts(tree, root, tokens, obs_pos, action, levels, cand):
     return n
 
 
-@numba.njit(cache=True)
+@helper
 def _weights(tree, node, outcomes, k, out, clock, rate):
     """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``.
 
@@ -315,7 +315,7 @@ def _weights(tree, node, outcomes, k, out, clock, rate):
     return total
 
 
-@numba.njit(cache=True)
+@helper
 def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand,
                  outcomes, probs, work):
     """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
@@ -360,7 +360,7 @@ def _new_graph(max_states: int, width: int, n_actions: int, transitions: int) ->
                   np.zeros(transitions, np.int32), np.zeros(transitions), np.zeros(2, np.int64))
 
 
-@numba.njit(cache=True)
+@helper
 def _state_id(states, node_state, tokens, length, graph):
     """The id of the state ``tokens[:length]``, registered if new; -1 when out of room."""
     n = graph.size[0]
@@ -381,7 +381,7 @@ def _state_id(states, node_state, tokens, length, graph):
     return node_state[node]
 
 
-@numba.njit(cache=True)
+@kernel
 def _build(tree, root, states, node_state, graph, start, actions, goal_mask, order, prior, novelty,
            clock, rate, horizon):
     """Expand every state reachable within ``horizon`` steps from ``start`` (breadth first).
@@ -410,7 +410,7 @@ def _build(tree, root, states, node_state, graph, start, actions, goal_mask, ord
     return True
 
 
-@numba.njit(cache=True)
+@helper
 def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty,
             clock, rate, scratch):
     """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
@@ -445,7 +445,7 @@ def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, ord
     return True
 
 
-@numba.njit(cache=True)
+@helper
 def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity):
     """Value and probability of reaching the goal after action ``sa`` from state ``s``.
 
@@ -458,7 +458,7 @@ def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity):
     return discount * (v + unknown[sa] * curiosity * value[s]), r + unknown[sa] * reach[s]
 
 
-@numba.njit(cache=True)
+@kernel
 def _values(graph, n_act, horizon, discount, curiosity):
     """Value iteration; returns ``(q, reach)`` per (state, action) of the final sweep."""
     n, goal, offsets, nxt, prob, unknown = (graph.size[0], graph.goal, graph.offsets, graph.nxt,
@@ -484,7 +484,7 @@ def _values(graph, n_act, horizon, discount, curiosity):
     return q, r
 
 
-@numba.njit(cache=True)
+@kernel
 def _path(graph, q, r, n_act, horizon):
     """The greedy policy's most likely path from state 0: action indices and outcomes."""
     n, goal, offsets, nxt, prob, unknown = (graph.size[0], graph.goal, graph.offsets, graph.nxt,
@@ -514,7 +514,7 @@ def _path(graph, q, r, n_act, horizon):
     return steps[:length], outcomes[:length]
 
 
-@numba.njit(cache=True)
+@kernel
 def _tried(tree, root, start, actions):
     """How often each action was taken from the current observation (order-0 weight)."""
     out = np.zeros(len(actions))

@@ -9,8 +9,8 @@ learning online from whatever goal it is given. Pure: numpy only, seeded generat
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+from slearn._jit import kernel
 
 
 class QLearner:
@@ -56,7 +56,7 @@ class QLearner:
         return int(best[rng.integers(len(best))])
 
 
-@numba.njit(cache=True)
+@kernel
 def _replay(q, states, actions, next_states, goal, sweeps, alpha, discount):
     for _ in range(sweeps):
         for i in range(len(states)):

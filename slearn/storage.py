@@ -267,7 +267,7 @@ def _view_table(library) -> pa.Table:
     if isinstance(library, LiteralLibrary) or library.mixer is None:
         return _table("view", 0, {})
     mixer, n = library.mixer, len(library.view_names)
-    weights = mixer.log_weight[:n].reshape(n, -1)
+    weights = mixer.weight[:n].reshape(n, -1)
     return _table("view", n, {
         "channel": pa.array(library.view_names, pa.string()),
         "view_epoch": pa.array(mixer.epoch[:n], pa.int32()),

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import numba
 import numpy as np
 
 from slearn.stream import Episode
+from slearn._jit import helper, kernel
 
 OBSERVATION = 0
 ACTION = 1
@@ -118,7 +118,7 @@ class TokenTable:
         return table
 
 
-@numba.njit(cache=True)
+@helper
 def _hash(kind, values, start, end):
     h = _FNV_BASIS ^ np.uint64(kind + 1)
     for i in range(start, end):
@@ -127,7 +127,7 @@ def _hash(kind, values, start, end):
     return np.int64(h >> np.uint64(1))
 
 
-@numba.njit(cache=True)
+@helper
 def _find(a, kind, values, start, end, h):
     mask = len(a.slots) - 1
     s = h & mask
@@ -147,7 +147,7 @@ def _find(a, kind, values, start, end, h):
         s = (s + 1) & mask
 
 
-@numba.njit(cache=True)
+@kernel
 def _find_all(a, kinds, symbols, offsets):
     out = np.empty(len(kinds), np.int32)
     for i in range(len(kinds)):
@@ -156,7 +156,7 @@ def _find_all(a, kinds, symbols, offsets):
     return out
 
 
-@numba.njit(cache=True)
+@helper
 def _place(a, t):
     mask = len(a.slots) - 1
     s = a.hashes[t] & mask
@@ -165,7 +165,7 @@ def _place(a, t):
     a.slots[s] = t
 
 
-@numba.njit(cache=True)
+@helper
 def _intern(a, kind, values, start, end):
     h = _hash(kind, values, start, end)
     t = _find(a, kind, values, start, end, h)
@@ -183,20 +183,20 @@ def _intern(a, kind, values, start, end):
     return t
 
 
-@numba.njit(cache=True)
+@kernel
 def _rehash(a):
     for t in range(a.size[0]):
         _place(a, t)
 
 
-@numba.njit(cache=True)
+@kernel
 def _hash_all(a):
     for t in range(a.size[0]):
         a.hashes[t] = _hash(a.kinds[t], a.symbols, a.offsets[t], a.offsets[t + 1])
         _place(a, t)
 
 
-@numba.njit(cache=True)
+@kernel
 def _tokenize(a, symbols, step_offsets, n_actions):
     n_steps = len(n_actions)
     if n_steps == 0:

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from slearn.errors import ParameterError
 from slearn.stream import Episode
 from slearn.tokens import ACTION, OBSERVATION, TokenTable, _find, _hash, _intern
+from slearn._jit import helper, kernel
 
 NO_VIEW = -1
 NO_TOKEN = -1
@@ -75,7 +75,7 @@ def encode(table: TokenTable, episode: Episode, view_of_symbol: np.ndarray,
     return StepCodes(codes.action, codes.offsets, codes.view[:used].copy(), codes.token[:used].copy())
 
 
-@numba.njit(cache=True)
+@kernel
 def _encode(table, symbols, step_offsets, n_actions, view_of, intern, action, offsets, view, token):
     buf = np.empty(max(len(symbols), 1), np.int32)
     views = np.empty(max(len(symbols), 1), np.int32)
@@ -111,7 +111,7 @@ def _encode(table, symbols, step_offsets, n_actions, view_of, intern, action, of
     return n
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _token(table, kind, values, start, end, intern):
     if intern:
         return _intern(table, kind, values, start, end)
@@ -119,7 +119,7 @@ def _token(table, kind, values, start, end, intern):
     return t if t >= 0 else UNKNOWN
 
 
-@numba.njit(cache=True, inline="always")
+@helper
 def _sort_small(values, n):
     for i in range(1, n):
         x = values[i]

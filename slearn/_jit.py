@@ -1,0 +1,108 @@
+"""How slearn compiles its kernels: two decorators and a cache of its own.
+
+* :func:`kernel` compiles a function called once per batch of work (a whole episode, a
+  table to rebuild). It may allocate; it reads the arrays of its state into locals once.
+* :func:`helper` compiles a function called per step from a kernel. Helpers are compiled
+  without numba's reference counting (``_nrt=False``): they take raw arrays and scalars,
+  never allocate, and a call costs what a C call costs. (A helper inlined into its caller
+  at numba's IR level, or compiled with reference counting, pays an atomic increment and
+  decrement per array argument on every call: that was most of the learning time.)
+
+Compiled code is cached on disk in a folder of slearn's own, named after a fingerprint
+of the sources of every module that holds kernels, so that a change in any of them (a
+callee in another module included) compiles everything once again; numba alone checks a
+kernel against its own file only. The folder is set while slearn's kernels are decorated
+and restored after, so other libraries' kernels in the same process keep their own
+cache. Folders of older fingerprints are removed. ``NUMBA_CACHE_DIR`` moves slearn's
+folder under it; ``SLEARN_CACHE_DIR`` sets it outright.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from functools import lru_cache
+from pathlib import Path
+
+import numba
+
+_MARKER = b"from slearn._jit import"
+_PACKAGES = ("slearn", "slearn.replay", "slearn.recorders")
+KEEP_FOLDERS = 2  # the current fingerprint and the one before it (switching branches)
+
+
+def kernel(function):
+    """Compile ``function`` as a cached kernel (it may allocate)."""
+    with _slearn_cache():
+        return numba.njit(cache=True)(function)
+
+
+def helper(function):
+    """Compile ``function`` as a cached per-step helper: no reference counting, no allocation."""
+    with _slearn_cache():
+        return numba.njit(cache=True, _nrt=False)(function)
+
+
+class _slearn_cache:
+    """Point numba's cache at slearn's folder for the duration of a decoration."""
+
+    def __enter__(self) -> None:
+        self.saved = numba.config.CACHE_DIR
+        numba.config.CACHE_DIR = cache_folder()
+
+    def __exit__(self, *exc) -> None:
+        numba.config.CACHE_DIR = self.saved
+
+
+@lru_cache(maxsize=1)
+def cache_folder() -> str:
+    """slearn's cache folder for the current sources (created, older ones pruned)."""
+    base = cache_base()
+    folder = base / source_fingerprint()
+    folder.mkdir(parents=True, exist_ok=True)
+    folder.touch()
+    prune(base, folder)
+    return str(folder)
+
+
+def cache_base() -> Path:
+    """Where fingerprint folders live."""
+    if os.environ.get("SLEARN_CACHE_DIR"):
+        return Path(os.environ["SLEARN_CACHE_DIR"])
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "slearn"
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache")
+    return Path(home) / "slearn" / "numba"
+
+
+def kernel_sources() -> list[Path]:
+    """The source files of every slearn module that compiles kernels, sorted."""
+    folders = {Path(__file__).parent}
+    import importlib.util
+    for name in _PACKAGES[1:]:
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.submodule_search_locations:
+            folders.update(Path(p) for p in spec.submodule_search_locations)
+    files = [p for folder in folders for p in folder.glob("*.py")]
+    return sorted((p for p in files if _MARKER in p.read_bytes()), key=lambda p: (p.parent.name, p.name))
+
+
+def source_fingerprint() -> str:
+    """A short hash of the kernel modules' sources (names and contents)."""
+    digest = hashlib.sha256()
+    for path in kernel_sources():
+        digest.update(f"{path.parent.name}/{path.name}".encode() + b"\0" + path.read_bytes())
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()[:16]
+
+
+def prune(base: Path, current: Path) -> None:
+    """Remove fingerprint folders but the newest ``KEEP_FOLDERS`` (the current one kept)."""
+    try:
+        folders = [p for p in base.iterdir() if p.is_dir() and p != current and len(p.name) == 16]
+        folders.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+        for stale in folders[KEEP_FOLDERS - 1:]:
+            shutil.rmtree(stale, ignore_errors=True)
+    except OSError:
+        pass  # a read-only or vanished cache is not an error: numba recompiles
