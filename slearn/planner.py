@@ -315,7 +315,7 @@ def _weights(tree, node, outcomes, k, out, clock, rate):
     return total
 
 
-@helper
+@kernel
 def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand,
                  outcomes, probs, work):
     """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
@@ -360,7 +360,7 @@ def _new_graph(max_states: int, width: int, n_actions: int, transitions: int) ->
                   np.zeros(transitions, np.int32), np.zeros(transitions), np.zeros(2, np.int64))
 
 
-@helper
+@kernel
 def _state_id(states, node_state, tokens, length, graph):
     """The id of the state ``tokens[:length]``, registered if new; -1 when out of room."""
     n = graph.size[0]
@@ -410,7 +410,7 @@ def _build(tree, root, states, node_state, graph, start, actions, goal_mask, ord
     return True
 
 
-@helper
+@kernel
 def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty,
             clock, rate, scratch):
     """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
