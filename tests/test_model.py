@@ -1,0 +1,98 @@
+"""SequenceModel: the small Python API, its two forms, files and bad input."""
+
+import pytest
+
+from slearn import SequenceModel
+from slearn.errors import ParameterError, SlearnError
+
+TEXT = "the cat sat on the mat. the dog sat on the log. " * 30
+
+
+def test_learns_a_text_and_predicts_the_next_character():
+    model = SequenceModel()
+    model.learn(TEXT)
+    assert model.predict("the ca") == "t"
+    assert model.predict("the do") == "g"
+    ranked = model.rank("on the ", k=3)
+    assert len(ranked) == 3 and {"m", "l"} & {item for item, _ in ranked}
+    assert all(0 < p <= 1 for _, p in ranked)
+    assert model.predict_many(["the ca", "the do"]) == ["t", "g"]
+
+
+def test_any_hashable_items():
+    model = SequenceModel(max_length=2)
+    for _ in range(5):
+        model.learn([("a", 1), ("b", 2), ("c", 3), ("a", 1), ("b", 2)])
+    assert model.predict([("a", 1)]) == ("b", 2)
+
+
+def test_unseen_items_and_empty_histories_abstain():
+    model = SequenceModel()
+    assert model.predict("abc") is None  # nothing learned yet
+    model.learn("abcabcabc")
+    assert model.predict("") is None
+    assert model.predict("xyz") is None
+    assert model.rank("zzz") == []
+
+
+def test_a_history_longer_than_any_context_uses_its_tail():
+    model = SequenceModel(max_length=3)
+    model.learn("abcdabcdabcd")
+    assert model.predict("zzzzzzzzzzzzzzzzzzzzab") == "c"
+
+
+def test_an_empty_sequence_learns_nothing():
+    model = SequenceModel()
+    model.learn([])
+    assert model.library is None
+
+
+def test_unhashable_items_are_refused_with_a_clear_error():
+    model = SequenceModel()
+    with pytest.raises(ParameterError, match="not hashable"):
+        model.learn([[1, 2], [3]])
+    with pytest.raises(SlearnError):
+        model.learn([{"a": 1}])
+
+
+def test_save_and_load_give_the_same_predictions(tmp_path):
+    model = SequenceModel()
+    model.learn(TEXT)
+    path = tmp_path / "text.parquet"
+    model.save(path)
+    again = SequenceModel.load(path)
+    for history in ("the ca", "on the ", "sat o", "q"):
+        assert again.rank(history) == model.rank(history)
+    with pytest.raises(SlearnError, match="already exists"):
+        model.save(path)
+
+
+def test_the_step_form_predicts_each_channel():
+    model = SequenceModel()
+    for _ in range(5):
+        model.learn_steps([({}, {"pos": 3, "light": "off"}), ({"cmd": "R"}, {"pos": 4, "light": "off"}),
+                           ({"cmd": "R"}, {"pos": 5, "light": "on"}), ({"cmd": "L"}, {"pos": 4, "light": "off"})])
+    history = [({}, {"pos": 3, "light": "off"}), ({"cmd": "R"}, {"pos": 4, "light": "off"})]
+    assert model.predict_step(history, {"cmd": "R"}) == {"pos": 5, "light": "on"}
+    ranked = model.rank_step(history, {"cmd": "R"}, k=2)
+    assert set(ranked) == {"pos", "light"}
+
+
+def test_forms_do_not_mix():
+    model = SequenceModel()
+    model.learn("abc")
+    with pytest.raises(ParameterError, match="matching methods"):
+        model.learn_steps([({}, {"x": 1})])
+
+
+def test_bad_parameters():
+    with pytest.raises(ParameterError, match="scoring"):
+        SequenceModel(scoring="best")
+    with pytest.raises(ParameterError, match="max_length"):
+        SequenceModel(max_length=0).learn("abc")
+
+
+def test_the_literal_scoring_is_available():
+    model = SequenceModel(scoring="literal", max_length=5)
+    model.learn(TEXT)
+    assert model.predict("the ca") == "t"
