@@ -134,6 +134,8 @@ class PatternLibrary:
 
     def prepare(self) -> None:
         """Create the views (and their weights and streams) the vocabulary calls for."""
+        if self._has_actions is None and self.vocabulary is not None:
+            self._has_actions = any(role != OBSERVATION_ROLE for role in self.vocabulary.roles.values())
         if self.vocabulary is None:
             self._ensure_views([JOINT])
         else:
@@ -212,6 +214,8 @@ class PatternLibrary:
         if len(codes) == 0:
             return out
         self.prepare()
+        if self._has_actions is None:
+            raise ParameterError("encode an episode with this library before running it")
         state = self.streams if streams is None else streams
         if new_episode:
             views.restart(state)

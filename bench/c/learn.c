@@ -1,0 +1,220 @@
+/* slearn's learning rule in plain C: the speed anchor of bench/bench_learn.py, which
+ * checks that both build the same library, byte for byte.
+ *
+ * The rule (slearn/online.py, run_codes with learn=True): steps come encoded for views
+ * (slearn/views.py): an action token per step and the (view, observation token) reports.
+ * Each view's stream gets the step's action (all views), then its observation (a view
+ * that did not report shows its last one again). Before an observation is appended, every
+ * context of 1..K tokens just before it is looked up in a tree read backwards from the
+ * view's root; the experts of slearn/mixer.py (frequent, recent and fresh outcome of each
+ * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
+ * CUSUM watches the trusted frequency expert, and every context counts one more
+ * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
+ *
+ * Hash tables hold record ids; a record's key is (parent, token) for nodes and
+ * (owner, outcome) for entries, hashed as slearn/hashtable.py does. Capacities are given
+ * by the caller (no growth), so ids and every number match slearn's.
+ *
+ * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm
+ */
+#include <math.h>
+#include <stdint.h>
+
+#define EMPTY (-1)
+#define FREQUENT 0
+#define RECENT 1
+#define FRESH 2
+#define KINDS 3
+
+typedef struct {
+    int32_t *parent, *token, *first, *best, *newest, *fresh_best, *epoch, *node_slots;
+    int32_t *owner, *outcome, *next, *entry_slots;
+    int64_t *count, *last_seen, *fresh, *size;
+    int64_t node_mask, entry_mask;
+} tree_t;
+
+static int64_t home(int64_t a, int64_t b, int64_t mask) {
+    uint64_t key = ((uint64_t)a << 32) | (uint64_t)(uint32_t)b;
+    return (int64_t)((key * 0x9E3779B97F4A7C15ULL) >> 32) & mask;
+}
+
+static int32_t child_or_add(tree_t *t, int32_t node, int32_t tok) {
+    int64_t s = home(node, tok, t->node_mask);
+    for (;;) {
+        int32_t r = t->node_slots[s];
+        if (r == EMPTY) break;
+        if (t->parent[r] == node && t->token[r] == tok) return r;
+        s = (s + 1) & t->node_mask;
+    }
+    int32_t fresh = (int32_t)t->size[0];
+    t->parent[fresh] = node;
+    t->token[fresh] = tok;
+    t->node_slots[s] = fresh;
+    t->size[0] = fresh + 1;
+    return fresh;
+}
+
+static int32_t entry_or_add(tree_t *t, int32_t node, int32_t out) {
+    int64_t s = home(node, out, t->entry_mask);
+    for (;;) {
+        int32_t r = t->entry_slots[s];
+        if (r == EMPTY) break;
+        if (t->owner[r] == node && t->outcome[r] == out) return r;
+        s = (s + 1) & t->entry_mask;
+    }
+    int32_t e = (int32_t)t->size[1];
+    t->owner[e] = node;
+    t->outcome[e] = out;
+    t->next[e] = t->first[node];
+    t->first[node] = e;
+    t->entry_slots[s] = e;
+    t->size[1] = e + 1;
+    return e;
+}
+
+static void refresh(tree_t *t, int32_t node, int32_t current) {
+    if (t->epoch[node] == current) return;
+    for (int32_t e = t->first[node]; e != -1; e = t->next[e]) t->fresh[e] = 0;
+    t->fresh_best[node] = -1;
+    t->epoch[node] = current;
+}
+
+static void credit(tree_t *t, int32_t e, int32_t node, int64_t clock) {
+    t->count[e] += 1;
+    t->last_seen[e] = clock;
+    t->fresh[e] += 1;
+    int32_t b = t->best[node];
+    if (b == -1 || t->count[e] >= t->count[b]) t->best[node] = e;
+    t->newest[node] = e;
+    b = t->fresh_best[node];
+    if (b == -1 || t->fresh[e] >= t->fresh[b]) t->fresh_best[node] = e;
+}
+
+/* --- the mixer (slearn/mixer.py) ---------------------------------------------------- */
+
+static void update(double *w, const int32_t *cand, int n, int K, int32_t truth,
+                   double beta, double floor_) {
+    double before = 0.0, after = 0.0;
+    for (int k = 1; k <= n; k++)
+        for (int kind = 0; kind < KINDS; kind++) {
+            if (cand[k * KINDS + kind] < 0) continue;
+            double *x = &w[(k - 1) * KINDS + kind];
+            before += *x;
+            if (cand[k * KINDS + kind] != truth) *x *= beta;
+            after += *x;
+        }
+    if (after <= 0.0) return;
+    double ratio = before / after;
+    for (int k = 1; k <= n; k++)
+        for (int kind = 0; kind < KINDS; kind++)
+            if (cand[k * KINDS + kind] >= 0) w[(k - 1) * KINDS + kind] *= ratio;
+    double leader = 0.0;
+    for (int i = 0; i < K * KINDS; i++) leader = w[i] > leader ? w[i] : leader;
+    double scale = 1.0 / leader;
+    for (int i = 0; i < K * KINDS; i++) {
+        double x = w[i] * scale;
+        w[i] = (0.0 < x && x < floor_) ? floor_ : x;
+    }
+}
+
+static int32_t trusted(const double *w, const int32_t *cand, int n, int32_t epoch) {
+    int kind = epoch == 0 ? FREQUENT : FRESH;
+    double best = -1.0;
+    int32_t out = -1;
+    for (int k = 1; k <= n; k++)
+        if (cand[k * KINDS + kind] >= 0 && w[(k - 1) * KINDS + kind] >= best) {
+            best = w[(k - 1) * KINDS + kind];
+            out = cand[k * KINDS + kind];
+        }
+    return out;
+}
+
+static int detect(double *w, double *det, int K, int32_t said, int32_t truth,
+                  double threshold, double burn_in, double fresh_tie) {
+    if (said < 0) return 0;
+    int miss = said != truth;
+    if (det[2] >= burn_in) {
+        double q0 = (det[1] + 0.5) / (det[2] + 1.0);
+        double q1 = 0.5 * (1.0 + q0);
+        double step = miss ? log(q1 / q0) : log((1.0 - q1) / (1.0 - q0));
+        det[0] = det[0] + step > 0.0 ? det[0] + step : 0.0;
+    }
+    det[1] += miss ? 1.0 : 0.0;
+    det[2] += 1.0;
+    if (det[0] < threshold) return 0;
+    det[0] = det[1] = det[2] = 0.0;
+    for (int k = 0; k < K; k++) {
+        double a = w[k * KINDS + FREQUENT], b = w[k * KINDS + FRESH];
+        w[k * KINDS + FRESH] = (a > b ? a : b) * fresh_tie;
+    }
+    return 1;
+}
+
+/* --- the step loop ------------------------------------------------------------------ */
+
+typedef struct {
+    int32_t n_views, K, has_actions, empty_action, empty_observation;
+    double beta, floor_, threshold, burn_in, fresh_tie;
+} params_t;
+
+int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch,
+                     int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
+                     const int32_t *action, const int64_t *offsets, const int32_t *view,
+                     const int32_t *token, int64_t n_steps, int64_t clock, const params_t *p) {
+    int K = p->K;
+    int32_t nodes[256];
+    int32_t cand[257 * KINDS];
+    for (int64_t step = 0; step < n_steps; step++) {
+        int32_t a = action[step];
+        int push_action = p->has_actions && (step > 0 || a != p->empty_action);
+        if (push_action)
+            for (int v = 0; v < p->n_views; v++) recent[v * K + filled[v] % K] = a, filled[v]++;
+        for (int64_t r = offsets[step]; r < offsets[step + 1]; r++) {
+            int32_t v = view[r], x = token[r];
+            int depth = filled[v] < K ? (int)filled[v] : K;
+            if (depth > 0) {
+                int32_t ep = epoch[v], node = root[v];
+                int n = 0, m = 0;
+                for (int k = 1; k <= depth; k++) {
+                    node = child_or_add(t, node, recent[v * K + (filled[v] - k) % K]);
+                    nodes[k] = node;
+                    n = k;
+                }
+                for (int k = 1; k <= n; k++) {
+                    int32_t nd = nodes[k];
+                    if (t->first[nd] == -1) break;
+                    int32_t fb = t->fresh_best[nd];
+                    int current = t->epoch[nd] == ep && fb != -1;
+                    cand[k * KINDS + FREQUENT] = t->outcome[t->best[nd]];
+                    cand[k * KINDS + RECENT] = t->outcome[t->newest[nd]];
+                    cand[k * KINDS + FRESH] = (ep > 0 && current) ? t->outcome[fb] : -1;
+                    m = k;
+                }
+                double *w = &weights[(int64_t)v * K * KINDS];
+                update(w, cand, m, K, x, p->beta, p->floor_);
+                if (detect(w, &detector[v * 3], K, trusted(w, cand, m, epoch[v]), x,
+                           p->threshold, p->burn_in, p->fresh_tie))
+                    epoch[v] += 1;
+                ep = epoch[v];
+                for (int k = 1; k <= n; k++) {
+                    int32_t nd = nodes[k];
+                    refresh(t, nd, ep);
+                    credit(t, entry_or_add(t, nd, x), nd, clock);
+                }
+            }
+            recent[v * K + filled[v] % K] = x;
+            filled[v]++;
+            held[v] = x;
+        }
+        if (push_action) {
+            int64_t r = offsets[step];
+            for (int v = 0; v < p->n_views; v++) {
+                if (r < offsets[step + 1] && view[r] == v) { r++; continue; }
+                recent[v * K + filled[v] % K] = held[v] != -1 ? held[v] : p->empty_observation;
+                filled[v]++;
+            }
+        }
+        clock++;
+    }
+    return clock;
+}
