@@ -193,6 +193,22 @@ def node_total(first, nxt, weight, node):
 
 
 @helper
+def hit_probability(first, nxt, weight, node, e):
+    """How likely entry ``e``'s outcome follows ``node`` again, by PPM's method C: its count
+    over the node's total plus one escape count per distinct outcome (what was never seen
+    after the context keeps that share)."""
+    total = 0
+    distinct = 0
+    f = first[node]
+    while f != -1:
+        if weight[f] > 0:
+            total += weight[f]
+            distinct += 1
+        f = nxt[f]
+    return weight[e] / (total + distinct) if total > 0 else 0.0
+
+
+@helper
 def ranks_above(weight, last_seen, outcome, a, b):
     """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
     if weight[a] != weight[b]:

@@ -17,10 +17,14 @@ time can take over after a few dozen mistakes of the leader: the mixture tracks 
 expert when it changes (a switch of dynamics), as fixed-share does.
 
 Epochs. Counts accumulated before a change of dynamics mislead frequency forever. A
-Bernoulli CUSUM test watches the misses of the most trusted frequency expert: against
-its own miss rate ``q0`` so far, it accumulates the log-likelihood ratio of
-``q1 = (1 + q0) / 2`` and raises an alarm past ``ln(1 / FALSE_ALARM)`` (Page 1954; the
-false-alarm rate per prediction is at most ``FALSE_ALARM``). An alarm opens a new epoch:
+Bernoulli CUSUM test (Page 1954) watches the most trusted frequency expert: each of its
+predictions has its own expected miss rate ``q0`` (one minus the probability PPM's method C
+gives its outcome in its context: the outcome's count over the context's total plus one
+escape count per distinct outcome), and the test accumulates the
+log-likelihood ratio of ``q1 = (1 + q0) / 2`` against it, so a miss where the context is
+nearly certain weighs much, a miss where it is a coin toss little. It raises an alarm past
+``ln(1 / FALSE_ALARM)`` (the false-alarm rate per prediction is at most ``FALSE_ALARM``
+when the shares are calibrated). An alarm opens a new epoch:
 fresh counts restart from zero (:mod:`slearn.context_tree`), and the ``FRESH`` experts
 start from the weights of the frequency experts of the same length, so they speak as
 soon as they are as good. A false alarm costs little, because the all-time experts keep
@@ -46,7 +50,6 @@ N_KINDS = 3
 ETA = 0.1
 SPREAD = 5.0
 FALSE_ALARM = 1e-6
-BURN_IN = 32
 _THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
 _BETA = float(np.exp(-ETA))
 _FLOOR = float(np.exp(-SPREAD))
@@ -130,33 +133,32 @@ def update(w, v, cand, n, truth):
 
 
 @helper
-def trusted_frequency(w, v, cand, n, epoch):
-    """The outcome of the frequency expert of largest weight, or -1: all-time counts before
-    the first alarm, fresh counts after it (all-time counts are known stale by then)."""
+def trusted_length(w, v, cand, n, epoch):
+    """The context length of the frequency expert of largest weight, or 0: all-time counts
+    before the first alarm, fresh counts after it (all-time counts are known stale then)."""
     kind = FREQUENT if epoch == 0 else FRESH
-    best_w, out = -1.0, -1
+    best_w, out = -1.0, 0
     for k in range(1, n + 1):
         if cand[k, kind] >= 0 and w[v, k - 1, kind] >= best_w:
-            best_w, out = w[v, k - 1, kind], cand[k, kind]
+            best_w, out = w[v, k - 1, kind], k
     return out
 
 
 @helper
-def detect(w, det, v, said, truth):
+def detect(w, det, v, hit, p_hit):
     """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test.
 
+    ``p_hit`` is the expert's own probability of being right (see the module docstring):
+    the test compares the misses with the
+    misses expected context by context, so easy and hard contexts do not pass for a change.
     Returns whether the test raised an alarm (and if so, resets it and starts the
     ``FRESH`` experts from their frequency twins).
     """
-    if said < 0:
-        return False
-    miss = said != truth
-    if det[v, TRIALS] >= BURN_IN:
-        q0 = (det[v, MISSES] + 0.5) / (det[v, TRIALS] + 1.0)
-        q1 = 0.5 * (1.0 + q0)
-        step = np.log(q1 / q0) if miss else np.log((1.0 - q1) / (1.0 - q0))
-        det[v, CUSUM] = max(0.0, det[v, CUSUM] + step)
-    det[v, MISSES] += 1.0 if miss else 0.0
+    q0 = 1.0 - p_hit
+    q1 = 0.5 * (1.0 + q0)
+    step = np.log((1.0 - q1) / (1.0 - q0)) if hit else np.log(q1 / q0)
+    det[v, CUSUM] = max(0.0, det[v, CUSUM] + step)
+    det[v, MISSES] += 0.0 if hit else 1.0
     det[v, TRIALS] += 1.0
     if det[v, CUSUM] < _THRESHOLD:
         return False

@@ -21,10 +21,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from slearn.context_tree import (child, child_or_add, credit, entry_or_add, node_total,
+from slearn.context_tree import (child, child_or_add, credit, entry_or_add, hit_probability, node_total,
                                  ranks_above, refresh)
 from slearn.views import NO_TOKEN
-from slearn.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_frequency, update
+from slearn.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn._jit import helper, kernel
 
 
@@ -148,8 +148,14 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                             count, fresh, last_seen, outcome, nodes, m)
                 if learn:
                     update(weights, v, cand, m, x)
-                    if detect(weights, detector, v, trusted_frequency(weights, v, cand, m, epoch[v]), x):
-                        epoch[v] += 1
+                    kt = trusted_length(weights, v, cand, m, ep)
+                    if kt > 0:
+                        nd = nodes[kt]
+                        fresh_counts = ep > 0
+                        b = fresh_best[nd] if fresh_counts else best[nd]
+                        p_hit = hit_probability(first, nxt, fresh if fresh_counts else count, nd, b)
+                        if detect(weights, detector, v, outcome[b] == x, p_hit):
+                            epoch[v] += 1
                     ep = epoch[v]
                     for k in range(1, n + 1):
                         nd = nodes[k]
