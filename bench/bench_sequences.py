@@ -7,7 +7,7 @@ The protocol is IPredict's (the CPT+ authors' evaluation code, github.com/tedgue
   them (MSNBC, FIFA, SIGN); sequences shorter than ``min_size`` items are left out, and the
   first ``max_count`` kept (5000; SIGN 1000). The sequences are shuffled (``--seed``) and
   split into ``--folds`` folds (14, as in IPredict's experiments): each fold in turn is the
-  test set, the others train the model.
+  test set, the others train the model, in the shuffled order (as IPredict does).
 - A test sequence's last ``consequent`` items are the consequent; the ``window`` items
   before them are the prefix the model sees. The model predicts one item; it is a hit when
   that item is one of the consequent's ("one of the next items"). Accuracy is hits over all
@@ -302,10 +302,11 @@ def evaluate(dataset: Dataset, folds: int, seed: int) -> dict:
     hits = {m: 0 for m in names}
     ceiling, tested = 0.0, 0
     sequences = dataset.sequences
+    shuffled = np.concatenate(split(len(sequences), folds, seed))
     for test in split(len(sequences), folds, seed):
         in_test = np.zeros(len(sequences), bool)
         in_test[test] = True
-        train = [s for s, t in zip(sequences, in_test) if not t]
+        train = [sequences[j] for j in shuffled if not in_test[j]]  # IPredict's order: shuffled
         queries = [_query(sequences[i], dataset.profile) for i in test]
         prefixes = [q[0] for q in queries]
         guesses = peer_predictions(train, prefixes)
