@@ -225,19 +225,21 @@ class _CopyWriter(EpisodeWriter):
         channel_id = self._copied.get(message.channel.id)
         if channel_id is None:
             channel_id = self._copied[message.channel.id] = self._copy_channel(message.channel)
-        self._active().add_message(channel_id, log_time=message.log_time_ns, data=message.data,
-                                   publish_time=message.publish_time_ns, sequence=message.sequence)
+        with self._writing():
+            self._active().add_message(channel_id, log_time=message.log_time_ns, data=message.data,
+                                       publish_time=message.publish_time_ns, sequence=message.sequence)
 
     def _copy_channel(self, channel: ChannelInfo) -> int:
         writer = self._active()
         schema_id = 0
-        if channel.schema is not None:
-            s = channel.schema
-            key = ("copied", s.name, s.encoding, s.data)
-            schema_id = self._schemas.get(key) or writer.register_schema(s.name, s.encoding, s.data)
-            self._schemas[key] = schema_id
-        return writer.register_channel(channel.topic, channel.message_encoding, schema_id,
-                                       dict(channel.metadata))
+        with self._writing():
+            if channel.schema is not None:
+                s = channel.schema
+                key = ("copied", s.name, s.encoding, s.data)
+                schema_id = self._schemas.get(key) or writer.register_schema(s.name, s.encoding, s.data)
+                self._schemas[key] = schema_id
+            return writer.register_channel(channel.topic, channel.message_encoding, schema_id,
+                                           dict(channel.metadata))
 
 
 # --- when each step happened ----------------------------------------------------------------

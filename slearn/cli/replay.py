@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
+from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
 from slearn.library import DEFAULT_MAX_LENGTH
 from slearn.predictor import SCORINGS
@@ -31,15 +32,15 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
 
 
 @click.command("replay")
-@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
 @click.option("--spec", "spec", type=click.Path(dir_okay=False),
               help="Channel spec (TOML): start from an empty library (implies --online).")
 @click.option("--window", type=click.IntRange(min=1), help="Steps per learning-curve window.")
-@click.option("--top-k", type=click.IntRange(min=1), default=3, show_default=True,
+@click.option("--top-k", type=click.IntRange(1, MAX_TOP_K), default=3, show_default=True,
               help="Ranked guesses that count for the top-k accuracy.")
 @click.option("--scoring", type=click.Choice(SCORINGS), help="Override the library's scoring rule.")
-@click.option("--max-length", type=click.IntRange(min=1), default=DEFAULT_MAX_LENGTH,
+@click.option("--max-length", type=LENGTH, default=DEFAULT_MAX_LENGTH,
               show_default=True, help="Pattern length of an empty library (--spec).")
 @click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
               help="Training log for the baselines (repeat; default: the library's own inputs "
@@ -51,7 +52,7 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
               help="Write the log annotated with /slearn/prediction, /slearn/correct and "
                    "/slearn/surprise (a folder for several logs).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
-@click.option("--fail-under", type=click.FloatRange(0, 100),
+@click.option("--fail-under", type=FiniteFloat(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
