@@ -30,10 +30,10 @@ def command() -> None:
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of all randomness.")
 @click.option("--switch-trial", type=click.IntRange(0, MAX_TRIALS), default=5_000, show_default=True,
               help="First trial of the scramble or reversal.")
-@click.option("--error-deg", type=FiniteFloat(0, 10), default=5.0, show_default=True,
-              help="Half-width of the uniform move error (error).")
-@click.option("--delay-prob", type=FiniteFloat(0, 1), default=0.5, show_default=True,
-              help="Chance that a command is delayed by one trial (delay).")
+@click.option("--error-deg", type=FiniteFloat(), default=5.0, show_default=True,
+              help="Half-width of the uniform move error (error), 0 to 10.")
+@click.option("--delay-prob", type=FiniteFloat(), default=0.5, show_default=True,
+              help="Chance that a command is delayed by one trial (delay), 0 to 1.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The MCAP file to write.")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")

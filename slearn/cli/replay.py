@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import click
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
+from slearn.files import check_output
 from slearn.library import DEFAULT_MAX_LENGTH
 from slearn.predictor import SCORINGS
 
@@ -25,10 +25,11 @@ def _is_mcap(path: str) -> bool:
         return path.endswith(".mcap")
 
 
-def _check_outputs(paths: list[str | None], force: bool) -> None:
+def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
+    """Refuse outputs that exist (without --force) or are inputs (always), before replaying."""
     for path in paths:
-        if path and Path(path).exists() and not Path(path).is_dir() and not force:
-            raise InputError(f"{path} already exists: pass --force to overwrite it")
+        if path:
+            check_output(path, force, inputs)
 
 
 @click.command("replay")
@@ -70,16 +71,17 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     from slearn.replay.evaluate import replay_logs
 
     library, logs = _split(paths, spec)
-    _check_outputs([plot, report, write_mcap], force)
+    inputs = [*paths, *baseline_train, *([spec] if spec else [])]
+    _check_outputs([plot, report], force, inputs)
     if write_mcap:
         from slearn.replay.annotate import annotated_paths
 
-        _check_outputs(annotated_paths(logs, write_mcap), force)
+        _check_outputs(annotated_paths(logs, write_mcap), force, inputs)
     evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
                              window=window, max_length=max_length, scoring=scoring,
                              baseline_logs=baseline_train or None,
                              keep_outcomes=write_mcap is not None, progress=not quiet)
-    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet)
+    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
     _render(evaluation, outputs, as_json)
     for warning in evaluation.warnings:
         click.echo(f"slearn: warning: {warning}", err=True)
@@ -107,7 +109,7 @@ def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[s
 
 
 def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap: str | None,
-                   force: bool, quiet: bool) -> dict:
+                   force: bool, quiet: bool, inputs: list[str]) -> dict:
     outputs: dict = {}
     if plot:
         from slearn.replay.plots import write_curves
@@ -122,7 +124,7 @@ def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap:
     if write_mcap:
         from slearn.replay.annotate import write_annotated
 
-        written = write_annotated(evaluation, write_mcap, overwrite=force)
+        written = write_annotated(evaluation, write_mcap, overwrite=force, inputs=inputs)
         outputs["annotated"] = [w.to_dict() for w in written]
     for kind, value in outputs.items():
         if not quiet:
