@@ -54,7 +54,7 @@ class AtomicFile:
         if sweep:
             sweep_stale_temps(self.path)
         self.tmp_path, fd = _create_temp(self.path)
-        self.file: BinaryIO = io.open(fd, "wb")
+        self.file: BinaryIO = open_temp(fd)
 
     def write(self, data: bytes) -> int:
         """Write bytes to the temporary file."""
@@ -206,6 +206,12 @@ def fsync_folder(folder: str | os.PathLike) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def open_temp(fd: int) -> BinaryIO:
+    """The buffered binary file every output's bytes go through (tests replace it to
+    simulate a full disk)."""
+    return io.open(fd, "wb")
 
 
 def _create_temp(path: Path) -> tuple[Path, int]:

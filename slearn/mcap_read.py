@@ -360,6 +360,7 @@ def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
             break
         op, length = _RECORD_HEAD.unpack(head)
         if op == _OP_INVALID:
+            builder.close()  # a block never spans the zeros
             pos = _skip_zeros(f, pos, size, report)
             if pos is None:
                 break
@@ -586,7 +587,7 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
 
 def _check_room(n_bytes: int, n_messages: int, room: int) -> None:
     if n_bytes + _MESSAGE_BYTES * n_messages > room:
-        raise _TooLarge(f"{n_bytes:,} bytes of records and {n_messages:,} messages")
+        raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_messages:,} messages")
 
 
 class _Opened(NamedTuple):
@@ -626,9 +627,9 @@ class _Merge:
                 buf = self.f.read(block.end - block.offset)
             messages = _parse_messages(buf, self.layout, self.wanted, room)
         except _TooLarge as err:
-            held = f" with {self.open_bytes >> 20} MiB held by chunks overlapping in time" \
+            held = f" with {self.open_bytes / 2**20:.1f} MiB held by chunks overlapping in time" \
                 if self.open_bytes else ""
-            self._skip(block, f"{err}: over the {self.limit >> 20} MiB of chunk data read at "
+            self._skip(block, f"{err}: over the {self.limit / 2**20:g} MiB of chunk data read at "
                               f"once{held}; raise {MAX_CHUNK_ENV} to read it")
             buf, messages = b"", []
         except (ValueError, struct.error) as err:
