@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import click
 
@@ -18,6 +19,8 @@ _MCAP_MAGIC = b"\x89MCAP"
 
 
 def _is_mcap(path: str) -> bool:
+    if not os.path.isfile(path):  # never open a FIFO: it would block
+        return path.endswith(".mcap")
     try:
         with open(path, "rb") as f:
             return f.read(5) == _MCAP_MAGIC
