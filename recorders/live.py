@@ -97,8 +97,12 @@ class EventFile:
 
     def __enter__(self) -> "EventFile":
         self._writer.__enter__()
-        for name, data in self._metadata.items():
-            self._writer.add_metadata(name, data)
+        try:
+            for name, data in self._metadata.items():
+                self._writer.add_metadata(name, data)
+        except BaseException as err:  # __exit__ is not called when __enter__ raises
+            self._writer.__exit__(type(err), err, err.__traceback__)
+            raise
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
