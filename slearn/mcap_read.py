@@ -560,20 +560,21 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         _TooLarge: holding the messages would take more than ``room`` bytes.
     """
     out: list[tuple] = []
-    pos, end = 0, len(buf)
+    pos, end, n_records = 0, len(buf), 0
     channels = layout.channels
     while pos + 9 <= end:
         op, length = _RECORD_HEAD.unpack_from(buf, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > end:
             raise ValueError(f"record at +{pos} runs past the end of its block")
+        n_records += 1
+        if n_records % _BLOCK_MESSAGES == 0:  # every record counts: floods of tiny ones stop early
+            _check_room(end, n_records, room)
         if op == _OP_MESSAGE:
             cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
             channel = channels.get(cid)
             if wanted is None or channel is None or channel.topic in wanted:
                 out.append((log_time, publish_time, seq, cid, body + 22, nxt))
-                if len(out) % _BLOCK_MESSAGES == 0:
-                    _check_room(end, len(out), room)
         elif op in (_OP_SCHEMA, _OP_CHANNEL):
             _register_record(op, buf, body, nxt, layout)
             _resolve_channels(layout)
@@ -585,9 +586,9 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
     return out
 
 
-def _check_room(n_bytes: int, n_messages: int, room: int) -> None:
-    if n_bytes + _MESSAGE_BYTES * n_messages > room:
-        raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_messages:,} messages")
+def _check_room(n_bytes: int, n_records: int, room: int) -> None:
+    if n_bytes + _MESSAGE_BYTES * n_records > room:
+        raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_records:,} records")
 
 
 class _Opened(NamedTuple):

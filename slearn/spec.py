@@ -320,7 +320,7 @@ def _shown(value: Any) -> str:
 def _where(source: str, i: int, entry: dict) -> str:
     topic = entry.get("topic", "?") if isinstance(entry, dict) else "?"
     fld = entry.get("field", "") if isinstance(entry, dict) else ""
-    return f"{source}: channel entry {i + 1} ({topic}{':' + fld if fld else ''})"
+    return f"{source}: channel entry {i + 1} ({topic}{f':{fld}' if fld else ''})"
 
 
 def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:

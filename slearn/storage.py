@@ -33,6 +33,7 @@ back) and deterministically: the same library gives the same bytes.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -299,9 +300,14 @@ def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
     try:
         parquet = pq.ParquetFile(path, page_checksum_verification=True)
         raw = (parquet.schema_arrow.metadata or {}).get(METADATA_KEY)
+        columns = _columns(parquet)
     except (pa.ArrowException, OSError, ValueError) as err:  # a flipped bit can give UnicodeDecodeError
         raise LibraryFormatError(f"{path}: not a readable Parquet file, truncated or corrupted "
                                  f"({_one_line(err)[:200]}): re-create it with `slearn learn`") from err
+    if raw is not None and columns != _stored_columns():
+        # pyarrow aborts the process on some mislabelled columns, so none is ever read
+        raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
+                                 f"library's): re-create it with `slearn learn`")
     if raw is None:
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library (no "
                                  f"'slearn' metadata): make libraries with `slearn learn`")
@@ -319,7 +325,7 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
         k = int(np.searchsorted(bounds, start, side="right")) - 1
         if k >= len(TABLES) or start + group.num_rows > bounds[k + 1]:
             raise LibraryFormatError(f"{path}: row groups do not match the library's tables")
-        _check_group_table(group, TABLES[k], path)
+        _check_group_table(parquet, i, TABLES[k], path)
         groups[TABLES[k]].append(i)
         start += group.num_rows
     if start != bounds[-1]:
@@ -327,9 +333,25 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
     return groups
 
 
-def _check_group_table(group, name: str, path: Path) -> None:
-    stats = group.column(0).statistics
-    if stats is not None and stats.has_min_max and not stats.min == stats.max == name:
+def _columns(parquet: pq.ParquetFile) -> tuple:
+    """The Arrow schema and the Parquet columns (path, physical type, levels) of a file."""
+    return (parquet.schema_arrow.remove_metadata(),
+            [(c.path, c.physical_type, c.max_definition_level, c.max_repetition_level)
+             for c in parquet.schema])
+
+
+@functools.cache
+def _stored_columns() -> tuple:
+    """:func:`_columns` of a file written with :data:`SCHEMA`."""
+    sink = pa.BufferOutputStream()
+    pq.write_table(SCHEMA.empty_table(), sink)
+    return _columns(pq.ParquetFile(pa.BufferReader(sink.getvalue())))
+
+
+def _check_group_table(parquet: pq.ParquetFile, i: int, name: str, path: Path) -> None:
+    # The column is read, not its statistics: pyarrow aborts the process on some damaged
+    # column metadata (row_group(i).column(j)) where reading raises an error.
+    if parquet.read_row_group(i, columns=["table"]).column(0).unique().to_pylist() != [name]:
         raise LibraryFormatError(f"{path}: a row group of table {name!r} holds other rows")
 
 

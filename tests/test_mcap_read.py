@@ -310,7 +310,7 @@ def test_a_chunk_of_tiny_messages_over_the_limit_is_skipped(tmp_path, monkeypatc
     monkeypatch.setenv("SLEARN_MAX_CHUNK_MB", "10")  # 3.1 MB of records, 25 MB of index
     got, report = _read_bytes(tmp_path, data)
     assert len(got) == 3 and report.n_skipped_chunks == 1
-    assert "3,100,000 bytes of records with at least 32,768 messages: over the 10 MiB of chunk data " \
+    assert "3,100,000 bytes of records with at least 32,768 records: over the 10 MiB of chunk data " \
            "read at once; raise SLEARN_MAX_CHUNK_MB to read it" in report.reason
 
 
