@@ -158,29 +158,34 @@ def _lz4_stream(piece: bytes, total: int) -> bytes:
 
 def bomb_payloads() -> list[tuple[str, str, bytes, int]]:
     """``(name, compression, data, real size)``; made in 1 MiB pieces, never whole in memory."""
-    zeros = bytes(MIB)
-    tiny = b"".join(mb.message(i % 1000, b"") for i in range(MIB // 31))
-    flood = b"".join(mb.record(0x80, b"") for _ in range(MIB // 9))
-    messages = b"".join(mb.message(i, b'{"v": 1.5}') for i in range(MIB // 41))
+    pieces = {"zeros": (bytes(MIB), 1),
+              "tiny": (b"".join(mb.message(i % 1000, b"") for i in range(MIB // 31)), 31),
+              "flood": (mb.record(0x80, b"") * (MIB // 9), 9),
+              "messages": (b"".join(mb.message(i, b'{"v": 1.5}') for i in range(MIB // 41)), 41)}
     out = []
-    for name, piece in (("zeros", zeros), ("tiny", tiny), ("flood", flood), ("messages", messages)):
-        for size in (64 * MIB, 200 * MIB):
-            size -= size % len(piece) if name != "zeros" else 0
-            out.append((f"zstd-{name}-{size // MIB}M", "zstd", _zstd_stream(piece, size, True), size))
-            out.append((f"zstd-{name}-{size // MIB}M-nosize", "zstd", _zstd_stream(piece, size, False), size))
-    out.append(("lz4-zeros-48M", "lz4", _lz4_stream(zeros, 48 * MIB), 48 * MIB))
-    out.append(("lz4-messages-8M", "lz4", _lz4_stream(messages, 8 * MIB - 8 * MIB % len(messages)),
-                8 * MIB - 8 * MIB % len(messages)))
-    return [p for p in out if len(p[2]) < MAX_INPUT // 2]
+    for name, (piece, record) in pieces.items():
+        for kib, lz4_too in ((16, True), (64, True), (48 << 10, True), (64 << 10, False), (200 << 10, False)):
+            size = (kib << 10) - (kib << 10) % record
+            data = piece[:size] if size <= len(piece) else piece
+            for content_size in (True, False):
+                out.append((f"zstd-{name}-{kib}K{'' if content_size else '-nosize'}", "zstd",
+                            _zstd_stream(data, size, content_size), size))
+            if lz4_too:
+                out.append((f"lz4-{name}-{kib}K", "lz4", _lz4_stream(data, size), size))
+    return [p for p in out if len(p[2]) < MAX_INPUT // 4]
 
 
 def bomb_file(rng: random.Random, payloads: list) -> bytes:
+    """A log with one to three bomb chunks beside a normal one: mostly small bombs and lies
+    that must be refused cheaply, and 1 % of chunks of 48-200 MiB (these take a second or
+    two each: what they hold is walked and decoded until the memory limit stops it)."""
+    small = [p for p in payloads if p[3] <= MIB]
+    large = [p for p in payloads if p[3] > MIB]
     parts = [mb.chunk(b"".join(mb.message(t, b'{"v": 2.5}') for t in range(10)))]
     for _ in range(rng.choice([1, 1, 1, 2, 3])):
-        name, compression, data, size = rng.choice(payloads)
-        declared = rng.choice([size, size, size - 1, size + 1, 1 << 40, rng.randrange(1 << 30), 0])
-        if declared == size and rng.random() < 0.8:
-            declared = size + rng.choice([-1, 1])  # mostly lies: a true size decompresses in full
+        name, compression, data, size = rng.choice(large if rng.random() < 0.01 else small)
+        declared = rng.choice([size, size, size, size - 1, size + 1, size + 1, 1 << 40, 1 << 40,
+                               rng.randrange(1 << 30), 0])
         label = compression if rng.random() < 0.9 else rng.choice(["zstd", "lz4", "", "bz2"])
         start = 0 if rng.random() < 0.5 else rng.randrange(10 ** 9)
         parts.append(mb.chunk(data=data, compression=label, declared=max(declared, 0), start=start,
@@ -222,11 +227,13 @@ def base_library(folder: Path) -> Path:
 
 def random_json(rng: random.Random, depth: int = 0):
     kind = rng.randrange(9 if depth < 3 else 6)
+    if kind == 6:
+        return [random_json(rng, depth + 1) for _ in range(rng.randrange(4))]
+    if kind == 7:
+        return {rng.choice(["a", "path", "rule", "x"]): random_json(rng, depth + 1) for _ in range(rng.randrange(3))}
     return [None, True, rng.randrange(-2 ** 70, 2 ** 70), rng.choice([0.5, -1e308, 1e-320, 10.0 ** rng.randint(-5, 20)]),
             rng.choice(["", "x", "adaptive", "observation", "\u00e9" * rng.randint(0, 5)]), rng.randrange(-3, 100),
-            [random_json(rng, depth + 1) for _ in range(rng.randrange(4))],
-            {rng.choice(["a", "path", "rule", "x"]): random_json(rng, depth + 1) for _ in range(rng.randrange(3))},
-            [[[[]]]]][kind]
+            None, None, [[[[]]]]][kind]
 
 
 def _paths(doc, prefix=()):

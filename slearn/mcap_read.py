@@ -514,6 +514,9 @@ def _zstd(data: bytes, size: int) -> bytes:
 def _lz4(data: bytes, size: int) -> bytes:
     import lz4.frame
 
+    declared = lz4.frame.get_frame_info(data)["content_size"]
+    if declared not in (0, size):  # 0: the frame does not say
+        raise ValueError(f"lz4 frame holds {declared} bytes, the chunk declares {size}")
     decompressor = lz4.frame.LZ4FrameDecompressor()
     out = decompressor.decompress(data, max_length=size + 1)  # one byte more tells "too much"
     if len(out) == size and not decompressor.eof:

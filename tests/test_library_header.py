@@ -187,3 +187,23 @@ def test_fields_of_later_versions_are_not_required_of_older_files():
     assert module._problem(doc, header, "", FORMAT_VERSION) is None
     assert module._problem(doc, header, "", FORMAT_VERSION + 1) == "field tables is missing"
     validate_header(doc, "x.parquet")
+
+
+def test_a_footer_that_mislabels_a_column_is_refused_without_crashing(good, tmp_path):
+    import subprocess
+    import sys
+
+    data = bytearray(good.read_bytes())
+    footer = len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+    element = data.index(b"\x15\x0c%\x02\x18\x05table", footer)  # type BYTE_ARRAY, name "table"
+    data[element + 1] = 0x08  # FLOAT: pyarrow aborted the process reading row-group metadata
+    bad = tmp_path / "mislabelled.parquet"
+    bad.write_bytes(bytes(data))
+    check = ("import sys; from slearn.storage import load_library, describe\n"
+             "from slearn.errors import LibraryFormatError\n"
+             "for f in (load_library, describe):\n"
+             "    try: f(sys.argv[1])\n"
+             "    except LibraryFormatError as e: print(e)\n")
+    done = subprocess.run([sys.executable, "-c", check, str(bad)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert done.stdout.count("its columns are not the library's") == 2
