@@ -135,3 +135,37 @@ def test_demo_then_a_rerun_in_the_same_folder_finishes(tmp_path, monkeypatch, su
     result = run(*args)
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.iterdir()) == ["figure2.png", "libraries", "logs", "summary.json"]
+
+
+def read_only(monkeypatch):
+    """Every new file in any folder fails as on a read-only file system."""
+    real_open = os.open
+
+    def refuse(path, flags, mode=0o777, **kwargs):
+        if flags & os.O_CREAT:
+            raise OSError(30, "Read-only file system", str(path))
+        return real_open(path, flags, mode, **kwargs)
+
+    monkeypatch.setattr(files.os, "open", refuse)
+
+
+def test_a_read_only_folder_is_one_line_for_every_writer(pointer, tmp_path, monkeypatch):
+    log, library = pointer
+    out = tmp_path / "out"
+    cases = [("learn", "-q", log, "-o", out / "lib.parquet"),
+             ("merge", library, library, "-o", out / "lib.parquet"),
+             ("record", "pointer", "--condition", "simple", "--trials", "1000", "-o", out / "p.mcap"),
+             ("replay", library, log, "--write-mcap", out / "a.mcap", "-q"),
+             ("replay", library, log, "--plot", out / "a.png", "-q"),
+             ("info", log, "--suggest-spec", out / "spec.toml"),
+             ("control", "--condition", "simple", "--goals", "1", "--trials", "1000", "--no-qlearning",
+              "--record", out / "run.mcap")]
+    out.mkdir()
+    read_only(monkeypatch)
+    for args in cases:
+        result = run(*args)
+        assert result.exit_code == 1, (args, result.output)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "cannot create a file in folder" in lines[0] and \
+            "Read-only file system" in lines[0], (args, result.stderr)
+    assert list(out.iterdir()) == []

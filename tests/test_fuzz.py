@@ -25,8 +25,15 @@ from slearn.vocabulary import Vocabulary
 
 from test_storage import learned, save
 
-FUZZ = settings(max_examples=150, deadline=None, derandomize=True,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+def fuzz(examples: int):
+    """Fixed examples (CI is reproducible), no deadline; the four tests take about 40 s."""
+    return settings(max_examples=examples, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+
 SPEC = Spec.from_dict({"mode": "change", "channel": [
     {"topic": "/a", "field": "v", "role": "observation", "width": 0.5},
     {"topic": "/b", "field": "c", "role": "action"}]})
@@ -109,7 +116,7 @@ def learn_log(path):
     return library
 
 
-@FUZZ
+@fuzz(3000)
 @given(data=mutated_log())
 def test_mutated_logs_raise_nothing_but_slearn_errors(tmp_path, data):
     path = tmp_path / "fuzz.mcap"
@@ -169,7 +176,7 @@ def test_mutated_headers_and_footers_raise_nothing_but_slearn_errors(library_fil
     data = library_file.read_bytes()
     footer = len(data) - 8 - int.from_bytes(data[-8:-4], "little")
 
-    @FUZZ
+    @fuzz(1500)
     @given(raw=mutated_header(doc), flip=st.integers(footer, len(data) - 1), bit=st.integers(0, 7))
     def check(raw, flip, bit):
         edited = tmp_path / "edited.parquet"
@@ -198,7 +205,7 @@ SPECS = st.fixed_dictionaries({"channel": st.lists(ENTRY, min_size=1, max_size=3
                                         "tick_ms": VALUE, "tick_ns": VALUE})
 
 
-@FUZZ
+@fuzz(2000)
 @given(data=SPECS, readings=st.lists(st.integers(-2 ** 1100, 2 ** 1100) | st.floats() | st.text(max_size=4)
                                       | st.booleans(), max_size=10))
 def test_spec_values_raise_nothing_but_spec_errors(data, readings):
@@ -214,7 +221,7 @@ def test_spec_values_raise_nothing_but_spec_errors(data, readings):
             assert value is None or hash(value) is not None
 
 
-@FUZZ
+@fuzz(1000)
 @given(text=st.text(alphabet="/ab:=;,.0123456789-enaifvlusrgcotwq_[]", max_size=60))
 def test_channel_shorthands_raise_nothing_but_spec_errors(text):
     entry = only_slearn_errors(parse_channel_option, text)

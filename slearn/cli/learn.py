@@ -11,6 +11,7 @@ import click
 from slearn.cli import EXIT_TRUNCATED
 from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
+from slearn.files import refuse_inputs
 from slearn.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
 from slearn.spec import MODES, Spec, load_spec, spec_from_options
 
@@ -76,6 +77,7 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     Exits 3 when a log was truncated: what could be read is learned and saved.
     """
     spec = _spec(spec_path, channels, mode, tick_ms)
+    refuse_inputs(output, [spec_path] if spec_path else [])
     paths = expand_paths(list(logs))
     progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings():
