@@ -215,7 +215,8 @@ def base_library(folder: Path) -> Path:
     steps = [((), (2,))] + [((int(rng.integers(0, 2)),), (int(rng.integers(2, 8)),)) for _ in range(300)]
     library.learn(Episode.from_steps(steps))
     path = folder / "good.parquet"
-    provenance = {"slearn_version": "bench", "inputs": [{"path": "a.mcap", "size_bytes": 1, "sha256": "0" * 64}],
+    provenance = {"slearn_version": "bench",
+                  "inputs": [{"path": "a.mcap", "size_bytes": 1, "sha256": "0" * 64}],
                   "time": "2020-01-01T00:00:00Z", "time_unix": 1577836800, "time_source": "bench"}
     spec = Spec.from_dict({"mode": "message", "channel": [
         {"topic": "/b", "field": "c", "role": "action", "values": ["L", "R"]},
@@ -230,10 +231,13 @@ def random_json(rng: random.Random, depth: int = 0):
     if kind == 6:
         return [random_json(rng, depth + 1) for _ in range(rng.randrange(4))]
     if kind == 7:
-        return {rng.choice(["a", "path", "rule", "x"]): random_json(rng, depth + 1) for _ in range(rng.randrange(3))}
-    return [None, True, rng.randrange(-2 ** 70, 2 ** 70), rng.choice([0.5, -1e308, 1e-320, 10.0 ** rng.randint(-5, 20)]),
-            rng.choice(["", "x", "adaptive", "observation", "\u00e9" * rng.randint(0, 5)]), rng.randrange(-3, 100),
-            None, None, [[[[]]]]][kind]
+        keys = [rng.choice(["a", "path", "rule", "x"]) for _ in range(rng.randrange(3))]
+        return {key: random_json(rng, depth + 1) for key in keys}
+    scalars = [None, True, rng.randrange(-2 ** 70, 2 ** 70),
+               rng.choice([0.5, -1e308, 1e-320, 10.0 ** rng.randint(-5, 20)]),
+               rng.choice(["", "x", "adaptive", "observation", "\u00e9" * rng.randint(0, 5)]),
+               rng.randrange(-3, 100), None, None, [[[[]]]]]
+    return scalars[kind]
 
 
 def _paths(doc, prefix=()):
@@ -287,7 +291,7 @@ def random_value(rng: random.Random):
 def random_spec(rng: random.Random) -> dict:
     entries = []
     for _ in range(rng.randint(1, 3)):
-        entry = {"topic": rng.choice(["/a", "", 5]), "role": rng.choice(["action", "observation", "x"])}
+        entry = {"topic": rng.choice(["/a", "/a", "", 5, [1]]), "role": rng.choice(["action", "observation", "x"])}
         entry.update({key: random_value(rng) for key in rng.sample(KEYS, rng.randint(0, 4))})
         entries.append(entry)
     data = {"channel": entries}

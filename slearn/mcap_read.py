@@ -171,7 +171,8 @@ class ReadReport:
             return f"{self.path}: {self.n_messages} messages read"
         parts = []
         if self.broken_at is not None:
-            skipped = f", {self.n_skipped_chunks} unreadable chunk(s) skipped" if self.n_skipped_chunks else ""
+            skipped = (f", {self.n_skipped_chunks} unreadable chunk(s) skipped"
+                       if self.n_skipped_chunks else "")
             which = " of the selected topics" if self.filtered else ""
             parts.append(f"truncated or corrupt log: salvaged {self.n_messages} messages{which}; "
                          f"broke at byte {self.broken_at} of {self.size_bytes} ({self.reason}){skipped}")

@@ -283,7 +283,8 @@ def _build_spec(data: dict, source: str) -> Spec:
         raise SpecError(f"{source}: no [[channel]] entries: a spec needs at least one")
     if len(entries) > MAX_CHANNELS:
         raise SpecError(f"{source}: {len(entries)} [[channel]] entries; at most {MAX_CHANNELS:,}")
-    topics = Counter(e.get("topic") for e in entries if isinstance(e, dict) and isinstance(e.get("topic"), str))
+    topics = Counter(e["topic"] for e in entries
+                     if isinstance(e, dict) and isinstance(e.get("topic"), str))
     channels = tuple(_build_entry(e, i, topics, source) for i, e in enumerate(entries))
     name, n = Counter(c.name for c in channels).most_common(1)[0]
     if n > 1:

@@ -304,13 +304,12 @@ def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
     except (pa.ArrowException, OSError, ValueError) as err:  # a flipped bit can give UnicodeDecodeError
         raise LibraryFormatError(f"{path}: not a readable Parquet file, truncated or corrupted "
                                  f"({_one_line(err)[:200]}): re-create it with `slearn learn`") from err
-    if raw is not None and columns != _stored_columns():
-        # pyarrow aborts the process on some mislabelled columns, so none is ever read
-        raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
-                                 f"library's): re-create it with `slearn learn`")
     if raw is None:
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library (no "
                                  f"'slearn' metadata): make libraries with `slearn learn`")
+    if columns != _stored_columns():  # pyarrow aborts the process on some mislabelled columns
+        raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
+                                 f"library's): re-create it with `slearn learn`")
     return parquet, parse_header(raw, path)
 
 

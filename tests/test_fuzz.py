@@ -92,7 +92,8 @@ def mutated_log(draw) -> bytes:
         elif kind == "swap" and b <= c:
             data[a:d] = data[c:d] + data[b:c] + data[a:b]
         elif kind == "length":
-            struct.pack_into("<Q", data, a + 1, draw(st.sampled_from([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1])))
+            lengths = st.sampled_from([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1])
+            struct.pack_into("<Q", data, a + 1, draw(lengths))
         elif kind == "opcode":
             data[a] = draw(st.integers(0, 255))
         elif kind == "zeros":
@@ -198,7 +199,8 @@ KEYS = ["field", "name", "values", "max_symbols", "width", "origin", "range", "c
 VALUE = (st.none() | st.booleans() | st.integers(-2 ** 70, 2 ** 70) | st.floats() | st.text(max_size=6)
          | st.lists(st.integers(-5, 5) | st.floats() | st.text(max_size=3), max_size=5)
          | st.lists(st.lists(st.integers(), max_size=2), max_size=2))
-ENTRY = st.fixed_dictionaries({"topic": st.just("/a"), "role": st.sampled_from(["action", "observation", "x"])},
+ENTRY = st.fixed_dictionaries({"topic": st.just("/a") | VALUE,
+                               "role": st.sampled_from(["action", "observation", "x"])},
                               optional={k: VALUE for k in KEYS})
 SPECS = st.fixed_dictionaries({"channel": st.lists(ENTRY, min_size=1, max_size=3)},
                               optional={"mode": st.sampled_from(["message", "change", "tick", "x"]),

@@ -59,7 +59,8 @@ def test_learn_refuses_to_write_over_its_log_even_with_force(pointer, tmp_path):
     for output in (log, tmp_path / "alias.mcap", tmp_path / "." / log.name):
         line = one_line(run("learn", "-q", log, "-o", output, "--force"))
         assert "is also an input" in line and "even with --force" in line
-    assert "is also an input" in one_line(run("learn", "-q", log, "--resume", library, "-o", library, "--force"))
+    resumed = run("learn", "-q", log, "--resume", library, "-o", library, "--force")
+    assert "is also an input" in one_line(resumed)
     assert log.read_bytes() == before and load_library(library)
 
 
