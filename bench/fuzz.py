@@ -113,7 +113,7 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
             del data[a:b]
         elif kind == "swap" and b <= c:
             data[a:d] = data[c:d] + data[b:c] + data[a:b]
-        elif kind == "length":
+        elif kind == "length" and a + 9 <= len(data):
             struct.pack_into("<Q", data, a + 1, rng.choice([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1,
                                                             rng.randrange(2 ** 20)]))
         elif kind == "opcode":

@@ -20,10 +20,15 @@ How it reads, and why:
    with ties in file order, whatever the file layout.
 
 Memory holds the open blocks only (the chunks whose time ranges overlap the frontier,
-plus a small block index), so it does not grow with the length of the log. A chunk or
-record that cannot be read is skipped; what it cost is recorded in a :class:`ReadReport`
-and, at the end of the pass, a :class:`~slearn.errors.TruncatedLogWarning` names the
-file, the messages read and the byte offset where it broke.
+plus a small block index), so it does not grow with the length of the log, and it is
+bounded whatever the file says: a chunk is decompressed into exactly the size it declares
+(more or less data is a damaged chunk), and the open blocks together, records plus their
+message index, stay under ``SLEARN_MAX_CHUNK_MB`` (:func:`max_chunk_bytes_setting`). Zero
+bytes where a record should start are skipped whole (data section) or end the chunk, never
+walked record by record. A chunk or record that cannot be read, or would not fit, is
+skipped; what it cost is recorded in a :class:`ReadReport` and, at the end of the pass, a
+:class:`~slearn.errors.TruncatedLogWarning` names the file, the messages read and the byte
+offset where it broke.
 """
 
 from __future__ import annotations
@@ -479,7 +484,7 @@ def _resolve_channels(layout: _Layout) -> None:
 # --- pass 2: blocks and merge ---------------------------------------------------------
 
 class _TooLarge(ValueError):
-    """A block would not fit in the memory limit (see :func:`max_chunk_bytes`)."""
+    """A block would not fit in the memory limit (see :func:`max_chunk_bytes_setting`)."""
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
@@ -546,7 +551,7 @@ def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
     try:
         data = _decompress(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
     except ValueError:
-        raise
+        raise  # a size mismatch, said as it is
     except Exception as err:  # zstd/lz4 raise their own error types
         raise ValueError(f"chunk cannot be decompressed: {err}") from err
     if crc and zlib.crc32(data) != crc:

@@ -91,7 +91,7 @@ def mutated_log(draw) -> bytes:
             del data[a:b]
         elif kind == "swap" and b <= c:
             data[a:d] = data[c:d] + data[b:c] + data[a:b]
-        elif kind == "length":
+        elif kind == "length" and a + 9 <= len(data):
             lengths = st.sampled_from([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1])
             struct.pack_into("<Q", data, a + 1, draw(lengths))
         elif kind == "opcode":
