@@ -436,6 +436,8 @@ def _read_pattern_columns(parquet: pq.ParquetFile, groups: list[int], path: Path
     ends = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)])
     if len(sizes) and sizes.min() < 0 or not np.array_equal(ends[token_offsets], symbol_offsets):
         raise LibraryFormatError(f"{path}: pattern token sizes do not add up to the patterns")
+    if len(columns.count) and columns.count.min() < 1:
+        raise LibraryFormatError(f"{path}: a pattern count is not positive: re-create the library")
     return columns
 
 

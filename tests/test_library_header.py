@@ -207,3 +207,19 @@ def test_a_footer_that_mislabels_a_column_is_refused_without_crashing(good, tmp_
     done = subprocess.run([sys.executable, "-c", check, str(bad)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-500:]
     assert done.stdout.count("its columns are not the library's") == 2
+
+
+def test_a_negative_pattern_count_is_refused(good, tmp_path):
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    table = pq.read_table(good)
+    is_pattern = pc.equal(table.column("table"), "pattern")
+    negative = pc.if_else(is_pattern, pa.scalar(-3, pa.int64()), table.column("count"))
+    table = table.set_column(table.schema.get_field_index("count"), "count", negative)
+    bad = tmp_path / "negative.parquet"
+    with pq.ParquetWriter(bad, table.schema) as writer:  # one row group per table, as saved
+        for name in ("vocabulary", "token", "pattern"):
+            writer.write_table(table.filter(pc.equal(table.column("table"), name)))
+    for function in (load_library, describe):
+        assert "a pattern count is not positive" in one_line_error(function, bad)
