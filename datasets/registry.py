@@ -26,6 +26,7 @@ from typing import Callable
 
 from slearn import __version__
 from slearn.errors import InputError, SpecError
+from slearn.files import atomic_write, claim_folder, release_folder, write_atomic
 from slearn.recorders.arm import MAX_JOINTS, ArmConfig, arm_spec, record_arm
 from slearn.recorders.live import spec_toml
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
@@ -104,7 +105,8 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
 
     Args:
         name: a registered dataset name.
-        folder: the output folder; it must not exist or be empty unless ``overwrite``.
+        folder: the output folder; it must not exist or be empty unless ``overwrite``
+            (or be left by a killed build, which is then redone).
         overwrite: rebuild into a non-empty folder; the dataset's own files there
             (cards, specs, split folders) are replaced, other files are left alone.
         source: a log of your own to put in ``heldout/`` (``pr2-sample`` only).
@@ -117,21 +119,18 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
     if source is not None and name != "pr2-sample":
         raise InputError(f"--source is for pr2-sample; {name} is simulated from seeds")
     folder = Path(folder)
-    _prepare_folder(folder, overwrite)
+    if source is not None and _inside(source, folder):
+        raise InputError(f"--source {source} is inside the output folder {folder}, which the build "
+                         f"replaces: copy the log elsewhere first")
+    claim_folder(folder, overwrite=overwrite, advice="pass --force to rebuild the dataset there")
     summary = BuildSummary(name, str(folder))
     dataset.build(folder, summary, Path(source) if source is not None else None)
+    release_folder(folder)
     return summary
 
 
-def _prepare_folder(folder: Path, overwrite: bool) -> None:
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder} is a file: give a folder to build the dataset in")
-    if folder.is_dir() and any(folder.iterdir()) and not overwrite:
-        raise InputError(f"{folder} is not empty: pass --force to rebuild the dataset there")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create {folder}: {err.strerror or err}") from err
+def _inside(path: str | os.PathLike, folder: Path) -> bool:
+    return Path(os.path.realpath(path)).is_relative_to(os.path.realpath(folder))
 
 
 def _split_folders(root: Path) -> dict[str, Path]:
@@ -152,12 +151,12 @@ def _package_text(name: str) -> str:
 
 def _write_card(path: Path, template: str, summary: BuildSummary, **values: str) -> None:
     text = Template(_package_text(template)).substitute(version=__version__, **values)
-    path.write_text(text, encoding="utf-8")
+    write_atomic(path, text, overwrite=True)
     summary.cards.append(str(path))
 
 
 def _write_spec(path: Path, text: str, summary: BuildSummary) -> str:
-    path.write_text(text, encoding="utf-8")
+    write_atomic(path, text, overwrite=True)
     summary.specs.append(str(path))
     return text
 
@@ -239,9 +238,10 @@ def _add_source(source: Path, heldout: Path, root: Path, summary: BuildSummary) 
         raise InputError(f"--source {source}: no such file (give an MCAP log)")
     target = heldout / source.name
     try:
-        shutil.copyfile(source, target)
+        with open(source, "rb") as src, atomic_write(target) as out:
+            shutil.copyfileobj(src, out.file)
     except OSError as err:
-        raise InputError(f"--source {source}: cannot copy it: {err.strerror or err}") from err
+        raise InputError(f"--source {source}: cannot read it: {err.strerror or err}") from err
     spec = load_spec(root / SPEC_FILE)
     try:
         [(_, episode, report)] = list(read_episodes([target], spec, Vocabulary()))

@@ -32,10 +32,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from slearn import __version__
 from slearn.errors import InputError, SlearnError
+from slearn.files import write_atomic
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.spec import Categorical, ChannelSpec, Spec
 from slearn.vocabulary import ROLES
@@ -96,8 +97,12 @@ class EventFile:
 
     def __enter__(self) -> "EventFile":
         self._writer.__enter__()
-        for name, data in self._metadata.items():
-            self._writer.add_metadata(name, data)
+        try:
+            for name, data in self._metadata.items():
+                self._writer.add_metadata(name, data)
+        except BaseException as err:  # __exit__ is not called when __enter__ raises
+            self._writer.__exit__(type(err), err, err.__traceback__)
+            raise
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -264,12 +269,10 @@ def spec_toml(spec: Spec, comment: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_text(path: str | os.PathLike, text: str) -> None:
-    """Write a text file; an unwritable path is an :class:`InputError`."""
-    try:
-        Path(path).write_text(text, encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"cannot write {path}: {err.strerror or err}") from err
+def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = True,
+               inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Write a text file atomically; an unwritable path is a one-line :class:`InputError`."""
+    write_atomic(path, text, overwrite=overwrite, inputs=inputs)
 
 
 def _toml_value(value: Any) -> str:

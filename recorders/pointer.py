@@ -49,6 +49,7 @@ COMMAND_NAMES = ("L", "R")
 COMMAND_CHANNEL = "/pointer/command"
 POSITION_CHANNEL = "/pointer/position"
 MAX_ERROR_DEG = 10.0
+MAX_TRIALS = 10_000_000  # a run is held in memory (about 12 bytes a trial)
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ class PointerConfig:
 
     Attributes:
         condition: one of :data:`CONDITIONS`.
-        trials: number of trials (commands), at least 1.
+        trials: number of trials (commands), 1 to :data:`MAX_TRIALS`.
         seed: non-negative seed of all randomness.
         switch_trial: first trial of the changed dynamics (``scramble``, ``reversal``).
         error_deg: half-width of the uniform move noise (``error``), 0 to 10.
@@ -90,9 +91,9 @@ def _validate(config: PointerConfig) -> None:
     if config.condition not in CONDITIONS:
         raise InputError(f"pointer condition {config.condition!r} is unknown: "
                          f"use one of {', '.join(CONDITIONS)}")
-    _check_int("trials", config.trials, minimum=1)
+    _check_int("trials", config.trials, minimum=1, maximum=MAX_TRIALS)
     _check_int("seed", config.seed, minimum=0)
-    _check_int("switch_trial", config.switch_trial, minimum=0)
+    _check_int("switch_trial", config.switch_trial, minimum=0, maximum=MAX_TRIALS)
     if config.condition in ("scramble", "reversal") and config.switch_trial >= config.trials:
         raise InputError(f"pointer {config.condition}: switch_trial {config.switch_trial} is not "
                          f"below trials {config.trials}, so the switch would never happen; "
@@ -101,9 +102,11 @@ def _validate(config: PointerConfig) -> None:
     _check_range("delay_prob", config.delay_prob, 0.0, 1.0)
 
 
-def _check_int(name: str, value: object, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise InputError(f"pointer {name} must be an integer >= {minimum}, not {value!r}")
+def _check_int(name: str, value: object, minimum: int, maximum: int | None = None) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum \
+            or maximum is not None and value > maximum:
+        bound = f"from {minimum} to {maximum:,}" if maximum is not None else f">= {minimum}"
+        raise InputError(f"pointer {name} must be an integer {bound}, not {value!r}")
 
 
 def _check_range(name: str, value: object, low: float, high: float) -> None:

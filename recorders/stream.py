@@ -41,6 +41,7 @@ from typing import Any, Iterable, Iterator
 
 from slearn import __version__
 from slearn.errors import InputError
+from slearn.files import check_output
 from slearn.recorders.live import EventFile, check_role, event_value, events_spec
 from slearn.spec import Spec
 from slearn.vocabulary import ROLES
@@ -106,7 +107,8 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
         roles: ``{channel: "action" | "observation"}``, over any ``role`` column.
         channel: the channel of tokens without ``NAME=``.
         tick_ns: log time between ticks of token and SPMF sequences.
-        overwrite: replace existing outputs (refused otherwise, before anything is written).
+        overwrite: replace existing outputs (refused otherwise, before anything is written;
+            an output that is ``source`` itself is always refused).
 
     Raises:
         InputError: unreadable file, a malformed line (named), a role conflict, or an
@@ -119,7 +121,8 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
         sequences = [_concatenate(sequences, tick_ns)]
     channel_roles = resolve_roles(sequences, roles or {}, source)
     paths = output_paths(Path(output), source, len(sequences))
-    _check_targets(paths, overwrite)
+    for path in paths:
+        check_output(path, overwrite, inputs=[source])
     for k, (sequence, path) in enumerate(zip(sequences, paths)):
         _write_episode(sequence, path, channel_roles, overwrite,
                        {"source": source.name, "format": fmt, "sequence": str(k),
@@ -196,14 +199,6 @@ def _known_format(fmt: str) -> str:
     if fmt not in FORMATS:
         raise InputError(f"format {fmt!r} is unknown: use one of {', '.join(FORMATS)}")
     return fmt
-
-
-def _check_targets(paths: list[Path], overwrite: bool) -> None:
-    for path in paths:
-        if path.exists() and not overwrite:
-            raise InputError(f"{path} already exists: pass --force to overwrite it")
-        if not path.parent.is_dir():
-            raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
 
 
 def _write_episode(sequence: Sequence, path: Path, roles: dict[str, str], overwrite: bool,

@@ -112,25 +112,27 @@ def annotated_paths(logs: list[str], out: str | os.PathLike) -> list[Path]:
     return paths
 
 
-def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *,
-                    overwrite: bool = False) -> list[AnnotateSummary]:
+def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *, overwrite: bool = False,
+                    inputs: list[str | os.PathLike] = ()) -> list[AnnotateSummary]:
     """Write an annotated copy of every replayed log (see :func:`annotated_paths`).
 
     ``evaluation`` must have been made with ``keep_outcomes=True`` from logs on disk.
 
     Raises:
-        InputError: an output exists (without ``overwrite``) or cannot be written.
+        InputError: an output exists (without ``overwrite``), is one of the replayed logs
+            or ``inputs`` (always), or cannot be written.
     """
     if len(evaluation.outcomes) != len(evaluation.episodes) or evaluation.spec is None:
         raise SlearnError("annotated logs need a replay of logs on disk kept with keep_outcomes=True")
     targets = annotated_paths([e.name for e in evaluation.episodes], out)
     decoder = ChannelDecoder(evaluation.tokens, evaluation.vocabulary)
-    return [_annotate_one(evaluation, outcome, target, decoder, overwrite)
+    sources = [*inputs, *(e.name for e in evaluation.episodes)]
+    return [_annotate_one(evaluation, outcome, target, decoder, overwrite, sources)
             for outcome, target in zip(evaluation.outcomes, targets)]
 
 
 def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
-                  decoder: ChannelDecoder, overwrite: bool) -> AnnotateSummary:
+                  decoder: ChannelDecoder, overwrite: bool, sources: list) -> AnnotateSummary:
     times = step_times(outcome.name, evaluation.spec, evaluation.vocabulary)
     if len(times) != len(outcome) + outcome.first_step:
         raise SlearnError(f"{outcome.name}: read {len(times)} steps for the annotated copy but "
@@ -139,7 +141,7 @@ def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
     at_ns = times[steps + outcome.first_step]
     payloads = _payloads(outcome, steps, decoder)
     copied = 0
-    with _CopyWriter(target, overwrite=overwrite) as out:
+    with _CopyWriter(target, overwrite=overwrite, inputs=sources) as out:
         out.add_metadata("slearn.replay", {
             "source": outcome.name, "mode": evaluation.mode,
             "library": str((evaluation.setup.get("library") or {}).get("path")),
@@ -225,19 +227,21 @@ class _CopyWriter(EpisodeWriter):
         channel_id = self._copied.get(message.channel.id)
         if channel_id is None:
             channel_id = self._copied[message.channel.id] = self._copy_channel(message.channel)
-        self._active().add_message(channel_id, log_time=message.log_time_ns, data=message.data,
-                                   publish_time=message.publish_time_ns, sequence=message.sequence)
+        with self._writing():
+            self._active().add_message(channel_id, log_time=message.log_time_ns, data=message.data,
+                                       publish_time=message.publish_time_ns, sequence=message.sequence)
 
     def _copy_channel(self, channel: ChannelInfo) -> int:
         writer = self._active()
         schema_id = 0
-        if channel.schema is not None:
-            s = channel.schema
-            key = ("copied", s.name, s.encoding, s.data)
-            schema_id = self._schemas.get(key) or writer.register_schema(s.name, s.encoding, s.data)
-            self._schemas[key] = schema_id
-        return writer.register_channel(channel.topic, channel.message_encoding, schema_id,
-                                       dict(channel.metadata))
+        with self._writing():
+            if channel.schema is not None:
+                s = channel.schema
+                key = ("copied", s.name, s.encoding, s.data)
+                schema_id = self._schemas.get(key) or writer.register_schema(s.name, s.encoding, s.data)
+                self._schemas[key] = schema_id
+            return writer.register_channel(channel.topic, channel.message_encoding, schema_id,
+                                           dict(channel.metadata))
 
 
 # --- when each step happened ----------------------------------------------------------------

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import io
 import os
-from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from slearn.errors import InputError
+from slearn.files import write_atomic
 from slearn.replay.evaluate import Evaluation
 
 
@@ -38,15 +37,12 @@ def curves_png(evaluation: Evaluation, *, width_in: float = 8.0, height_in: floa
 
 
 def write_curves(evaluation: Evaluation, path: str | os.PathLike) -> None:
-    """Write :func:`curves_png` to ``path``.
+    """Write :func:`curves_png` to ``path``, atomically (an existing file is replaced).
 
     Raises:
-        InputError: the file cannot be written.
+        InputError: the file cannot be written (an existing one is left as it was).
     """
-    try:
-        Path(path).write_bytes(curves_png(evaluation))
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
+    write_atomic(path, curves_png(evaluation), overwrite=True)
 
 
 def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, str]]:

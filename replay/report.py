@@ -7,9 +7,7 @@ import html
 import json
 import math
 import os
-from pathlib import Path
-
-from slearn.errors import InputError
+from slearn.files import write_atomic
 from slearn.replay.evaluate import Evaluation
 from slearn.replay.metrics import Tally
 
@@ -121,12 +119,9 @@ def _setup(evaluation: Evaluation) -> dict:
 
 
 def write_html(evaluation: Evaluation, path: str | os.PathLike) -> None:
-    """Write :func:`render_html` to ``path``.
+    """Write :func:`render_html` to ``path``, atomically (an existing file is replaced).
 
     Raises:
-        InputError: the file cannot be written.
+        InputError: the file cannot be written (an existing one is left as it was).
     """
-    try:
-        Path(path).write_text(render_html(evaluation), encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the report: {err.strerror or err}") from err
+    write_atomic(path, render_html(evaluation), overwrite=True)

@@ -27,7 +27,9 @@ from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.mcap_read import McapLog, ReadReport
 from slearn.serialize import fit_spec, read_episodes
 from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
-from slearn.storage import check_output, file_record, load_library, save_library
+from slearn.files import check_output, regular_file
+from slearn.library_header import MAX_TIME_UNIX
+from slearn.storage import file_record, load_library, save_library
 from slearn.vocabulary import Vocabulary
 
 SCORING_RULES = ("adaptive", "literal")
@@ -92,13 +94,13 @@ def expand_paths(patterns: list[str]) -> list[str]:
             raise InputError(f"{pattern}: no file matches")
         paths += matches
     for path in paths:
-        if not os.path.isfile(path):
-            raise InputError(f"{path}: no such log file")
+        regular_file(path, "log file")
     return paths
 
 
-def log_topics(path: str) -> set[str]:
-    """Topics of a log: from its channel records, else from its first messages."""
+def log_topics(path: str) -> tuple[set[str], ReadReport]:
+    """Topics of a log: from its channel records, else from its first messages; and the
+    report of that read (where the log broke, if it did)."""
     with McapLog(path) as log:
         topics = {c.topic for c in log.channels.values()}
         if not topics:
@@ -106,7 +108,7 @@ def log_topics(path: str) -> set[str]:
                 topics.add(message.topic)
                 if i >= _SNIFF_MESSAGES:
                     break
-    return topics
+        return topics, log.report
 
 
 def default_spec(path: str) -> Spec:
@@ -114,10 +116,13 @@ def default_spec(path: str) -> Spec:
 
     Raises:
         SpecError: the log is not a pointer log, so a spec is needed.
+        InputError: no channel could be read from a damaged log.
     """
-    topics = log_topics(path)
+    topics, report = log_topics(path)
     if {POINTER_COMMAND, POINTER_POSITION} <= topics:
         return pointer_spec()
+    if not topics and report.truncated:
+        raise InputError(f"nothing could be read: {report.describe()}")
     shown = ", ".join(sorted(topics)[:8]) or "none"
     raise SpecError(f"{path}: not a pointer log (topics: {shown}): pass --spec FILE or --channel "
                     f"(`slearn info {path} --suggest-spec spec.toml` writes a skeleton)")
@@ -178,10 +183,13 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
             steps, events so far) and the log's path.
 
     A truncated log is learned as far as it could be read; it is listed in the result's
-    ``truncated`` (and warned about), and the library is still saved.
+    ``truncated`` (and warned about), and the library is still saved, unless nothing at
+    all could be salvaged: then nothing is written. Cheap checks (the output, the resumed
+    library with its provenance, ``SOURCE_DATE_EPOCH``) come before any learning.
 
     Raises:
-        InputError: missing logs, an existing output without ``overwrite``, bad parameters.
+        InputError: missing logs, an existing output without ``overwrite``, an output that
+            is one of the inputs, bad parameters, nothing salvaged from damaged logs.
         SpecError: the spec does not fit a log, or no spec for a log that is not a pointer log.
         LibraryFormatError: ``resume`` is not a readable library.
     """
@@ -189,12 +197,16 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     paths = [os.fspath(p) for p in paths]
     if not paths:
         raise InputError("no logs to learn from")
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=paths + ([os.fspath(resume)] if resume else []))
     _check_scoring(scoring)
+    source_date_epoch()
     job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
            else _new_job(paths, spec, max_length, max_patterns, scoring, progress))
     result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
     _learn_episodes(job, paths, result, progress, on_episode)
+    if not result.n_steps and result.truncated:
+        raise InputError(f"nothing could be salvaged, so nothing was written: "
+                         f"{result.truncated[0].describe()}")
     saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
                          provenance=build_provenance(paths, job.provenance), overwrite=overwrite)
     result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
@@ -223,18 +235,32 @@ def build_provenance(paths: list[str], previous: dict | None = None) -> dict:
     Raises:
         InputError: a log cannot be read, or ``SOURCE_DATE_EPOCH`` is not an integer.
     """
-    inputs = list(previous["inputs"]) if previous else []
+    inputs = list(previous.get("inputs", [])) if previous else []
     inputs += [file_record(p) for p in paths]
-    epoch = os.environ.get("SOURCE_DATE_EPOCH")
-    if epoch is not None:
-        try:
-            stamp, source = int(epoch), "SOURCE_DATE_EPOCH"
-        except ValueError as err:
-            raise InputError(f"SOURCE_DATE_EPOCH must be an integer, not {epoch!r}") from err
-    else:
+    stamp, source = source_date_epoch(), "SOURCE_DATE_EPOCH"
+    if stamp is None:
         times = [int(os.stat(p).st_mtime) for p in paths]
         stamp = max(times + ([int(previous.get("time_unix", 0))] if previous else []))
-        source = "newest input mtime"
+        stamp, source = min(max(stamp, 0), MAX_TIME_UNIX), "newest input mtime"
     return {"slearn_version": __version__, "inputs": inputs, "time_unix": stamp,
             "time": datetime.fromtimestamp(stamp, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "time_source": source}
+
+
+def source_date_epoch() -> int | None:
+    """``SOURCE_DATE_EPOCH`` as whole seconds, ``None`` when unset.
+
+    Raises:
+        InputError: not an integer from 0 to 253402300799 (9999-12-31).
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if epoch is None:
+        return None
+    try:
+        stamp = int(epoch)
+    except ValueError:
+        stamp = -1
+    if not 0 <= stamp <= MAX_TIME_UNIX:
+        raise InputError(f"SOURCE_DATE_EPOCH must be an integer from 0 to {MAX_TIME_UNIX} "
+                         f"(9999-12-31), not {epoch[:40]!r}")
+    return stamp

@@ -32,7 +32,8 @@ import os
 import sys
 import time
 from array import array
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, replace
 from typing import Any, Iterable, Iterator
 
 import numpy as np
@@ -79,11 +80,17 @@ def _entries_by_topic(spec: Spec) -> dict[str, list[_Entry]]:
     return by_topic
 
 
-def _decoded(message, cache: DecoderCache, path: str) -> Any:
+def _decoded(message, cache: DecoderCache, path: str, report: ReadReport) -> Any:
+    """The decoded message; :data:`MISSING` (counted in ``report``) when its payload does not decode."""
     try:
-        return decode_payload(cache.require(message.channel), message.channel, message.data)
+        decoder = cache.require(message.channel)
     except DecodeError as err:
         raise SpecError(f"{path}: the spec selects topic {message.topic!r}, but {err}") from err
+    try:
+        return decode_payload(decoder, message.channel, message.data)
+    except DecodeError as err:
+        report.note_undecodable(message.topic, message.offset, str(err))
+        return MISSING
 
 
 def _field_value(obj: Any, entry: _Entry, path: str) -> Any:
@@ -98,7 +105,8 @@ def iter_field_values(path: str | os.PathLike, spec: Spec, report: ReadReport | 
     """Yield ``(log_time_ns, entry index, field value)`` for every spec entry of every message.
 
     Messages come in log-time order (ties in file order); entries of one message in spec
-    order. Only the spec's topics are decoded.
+    order. Only the spec's topics are decoded. A message whose payload does not decode is
+    skipped and counted in the report (per topic), like a damaged chunk.
 
     Raises:
         SpecError: a selected channel cannot be decoded, a field does not exist, a topic is
@@ -111,7 +119,9 @@ def iter_field_values(path: str | os.PathLike, spec: Spec, report: ReadReport | 
     with McapLog(path) as log, _Progress(path, progress) as bar:
         for message in log.iter_messages(by_topic, on_progress=bar.update):
             seen[message.topic] = seen.get(message.topic, 0) + 1
-            obj = _decoded(message, cache, path)
+            obj = _decoded(message, cache, path, log.report)
+            if obj is MISSING:
+                continue
             for entry in by_topic[message.topic]:
                 value = _field_value(obj, entry, path)
                 if value is not MISSING:
@@ -146,6 +156,7 @@ def _symbolize(values: Iterable[tuple[int, int, Any]], spec: Spec, vocabulary: V
     is_action = [c.role == ACTION for c in entries]
     group: list[tuple] = []
     group_time = None
+    known, per_channel = len(vocabulary), Counter(channel for _, channel, _ in vocabulary.items())
     for position, (log_time, index, value) in enumerate(values):
         value = entries[index].symbolizer.symbol_value(value)
         if value is None:
@@ -156,12 +167,22 @@ def _symbolize(values: Iterable[tuple[int, int, Any]], spec: Spec, vocabulary: V
             raise SpecError(f"{path}: spec entry {index + 1} ({entries[index].name!r}): field "
                             f"{entries[index].field!r} is a message, not a value; pick a field "
                             f"inside it (see `slearn info`)") from None
+        if symbol >= known:  # a new value: count it against the channel's limit
+            known += 1
+            _check_symbols(per_channel, entries[index], path)
         if log_time != group_time and group:
             yield from _ordered(group)
             group = []
         group_time = log_time
         group.append((log_time, is_action[index], index, position, symbol))
     yield from _ordered(group)
+
+
+def _check_symbols(per_channel: Counter, entry: ChannelSpec, path: str) -> None:
+    per_channel[entry.name] += 1
+    if per_channel[entry.name] > entry.symbol_limit:
+        raise SpecError(f"{path}: channel {entry.name!r} has more than {entry.symbol_limit:,} "
+                        f"distinct values: use coarser bins, or raise the entry's max_symbols")
 
 
 def _ordered(group: list[tuple]) -> Iterator[tuple[int, int, int, bool]]:
@@ -380,8 +401,10 @@ def fit_spec(spec: Spec, paths: Iterable[str | os.PathLike], progress: bool = Fa
     if not todo:
         return spec
     samples = {i: _Sample() for i in todo}
+    damaged = []
     for path in paths:
-        for _, index, value in iter_field_values(path, spec, None, progress):
+        report = ReadReport(os.fspath(path))
+        for _, index, value in iter_field_values(path, spec, report, progress):
             if index in samples:
                 try:
                     x = float(value)
@@ -389,15 +412,17 @@ def fit_spec(spec: Spec, paths: Iterable[str | os.PathLike], progress: bool = Fa
                     continue
                 if np.isfinite(x):
                     samples[index].add(x)
+        if report.truncated:
+            damaged.append(report)
     channels = list(spec.channels)
     for i in sorted(todo):
         if not samples[i].values:
+            why = f" (the log is damaged: {damaged[0].describe()})" if damaged else ""
             raise SpecError(f"{spec.source}: entry {i + 1} ({channels[i].name!r}): no numeric value "
-                            f"in the training logs to fit quantile bins on")
+                            f"in the training logs to fit quantile bins on{why}")
         bins: Bins = channels[i].symbolizer
-        channels[i] = ChannelSpec(channels[i].topic, channels[i].field, channels[i].role,
-                                  channels[i].name, Bins(quantiles=bins.quantiles,
-                                                         edges=_fitted_edges(samples[i].values, bins.quantiles)))
+        channels[i] = replace(channels[i], symbolizer=Bins(
+            quantiles=bins.quantiles, edges=_fitted_edges(samples[i].values, bins.quantiles)))
     return spec.with_channels(channels)
 
 

@@ -23,6 +23,14 @@ A spec is a TOML file::
     role = "action"
     values = ["L", "R"]    # categorical with declared values (fixes symbol order)
 
+Limits (refused with a one-line error naming the entry and the key): at most
+:data:`MAX_SYMBOLS` (10^6) symbols per channel (``count``, ``quantiles``, ``edges``,
+``values``, and the values a log brings) unless the entry raises it with ``max_symbols =
+N`` (up to 2^31 - 1); ``tick_ms`` from 0.000001 (1 ns) to 86,400,000 (a day); ``width`` and
+``origin``, ``range`` and ``edges`` finite (``width`` from 1e-300 to 1e300, ``range`` low
+< high with a finite span, ``edges`` strictly increasing); ``values`` distinct strings,
+integers, finite numbers or booleans; at most :data:`MAX_CHANNELS` entries.
+
 Symbolizers (one per entry; no binning key means categorical, values as they are):
 ``values = [...]`` (categorical, declared order first), ``width`` + ``origin`` (uniform
 bins, unbounded, the symbol is ``floor((x - origin) / width)``), ``range`` + ``count``
@@ -43,6 +51,7 @@ from __future__ import annotations
 import bisect
 import math
 import tomllib
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
@@ -55,8 +64,16 @@ MODES = ("message", "change", "tick")
 DEFAULT_MODE = "change"
 
 _BIN_KEYS = ("width", "origin", "range", "count", "edges", "quantiles", "wrap")
-_ENTRY_KEYS = ("topic", "field", "role", "name", "values") + _BIN_KEYS
+_ENTRY_KEYS = ("topic", "field", "role", "name", "values", "max_symbols") + _BIN_KEYS
 _SPEC_KEYS = ("mode", "tick_ms", "tick_ns", "channel")
+
+MAX_SYMBOLS = 1_000_000        # symbols per channel unless an entry raises it (max_symbols)
+MAX_SYMBOLS_LIMIT = (1 << 31) - 1  # symbols are int32
+MAX_CHANNELS = 10_000
+TICK_NS_RANGE = (1, 86_400 * 1_000_000_000)  # 1 ns to a day
+WIDTH_RANGE = (1e-300, 1e300)
+MAX_ORIGIN = 1e300
+_MAX_BIN_INDEX = 1 << 53  # beyond it a bin index is not exact in a float: the value is skipped
 
 
 @dataclass(frozen=True)
@@ -71,6 +88,8 @@ class Categorical:
             return tuple(x)
         if isinstance(x, (bytes, bytearray)) or x is None:
             return None
+        if isinstance(x, float) and math.isnan(x):
+            return None  # NaN never equals itself: every reading would be a new symbol
         return x
 
     def declared_values(self) -> list | None:
@@ -116,10 +135,11 @@ class Bins:
         return None if self.width is not None else len(self.cuts()) + 1
 
     def symbol_value(self, x: Any) -> int | None:
-        """The bin index of ``x``; ``None`` for non-numbers, NaN and infinities."""
+        """The bin index of ``x``; ``None`` for non-numbers, NaN, infinities, integers too
+        large for a float, and ``width`` bins beyond +-2^53."""
         try:
             x = float(x)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             return None
         if not math.isfinite(x):
             return None
@@ -127,7 +147,8 @@ class Bins:
             lo, hi = self.range
             x = lo + (x - lo) % (hi - lo)
         if self.width is not None:
-            return math.floor((x - self.origin) / self.width)
+            q = (x - self.origin) / self.width
+            return math.floor(q) if abs(q) < _MAX_BIN_INDEX else None
         return bisect.bisect_right(self._cuts, x)
 
     def __post_init__(self) -> None:
@@ -176,16 +197,23 @@ class ChannelSpec:
     role: str
     name: str
     symbolizer: Symbolizer = field(default_factory=Categorical)
+    max_symbols: int | None = None
 
     @property
     def path(self) -> FieldPath:
         """The parsed field path."""
         return parse_field_path(self.field)
 
+    @property
+    def symbol_limit(self) -> int:
+        """Most symbols this entry's channel may have (:data:`MAX_SYMBOLS` unless raised)."""
+        return self.max_symbols or MAX_SYMBOLS
+
     def to_dict(self) -> dict:
         """Plain JSON-able description."""
+        limit = {"max_symbols": self.max_symbols} if self.max_symbols is not None else {}
         return {"topic": self.topic, "field": self.field, "role": self.role,
-                "name": self.name, **self.symbolizer.to_dict()}
+                "name": self.name, **limit, **self.symbolizer.to_dict()}
 
 
 @dataclass(frozen=True)
@@ -253,30 +281,47 @@ def _build_spec(data: dict, source: str) -> Spec:
     entries = data.get("channel")
     if not isinstance(entries, list) or not entries:
         raise SpecError(f"{source}: no [[channel]] entries: a spec needs at least one")
-    topics = [e.get("topic") if isinstance(e, dict) else None for e in entries]
+    if len(entries) > MAX_CHANNELS:
+        raise SpecError(f"{source}: {len(entries)} [[channel]] entries; at most {MAX_CHANNELS:,}")
+    topics = Counter(e["topic"] for e in entries
+                     if isinstance(e, dict) and isinstance(e.get("topic"), str))
     channels = tuple(_build_entry(e, i, topics, source) for i, e in enumerate(entries))
-    names = [c.name for c in channels]
-    for name in names:
-        if names.count(name) > 1:
-            raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
+    name, n = Counter(c.name for c in channels).most_common(1)[0]
+    if n > 1:
+        raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
     return Spec(channels, mode, tick_ns, source)
 
 
 def _tick_ns(data: dict, mode: str, source: str) -> int | None:
     if "tick_ms" in data and "tick_ns" in data:
         raise SpecError(f"{source}: give tick_ms or tick_ns, not both")
-    tick = data.get("tick_ns", data["tick_ms"] * 1_000_000 if "tick_ms" in data else None)
-    if mode == "tick" and tick is None:
-        raise SpecError(f"{source}: mode \"tick\" needs tick_ms (or tick_ns)")
-    if tick is not None and (not isinstance(tick, (int, float)) or tick <= 0):
-        raise SpecError(f"{source}: the tick period must be a positive number, not {tick!r}")
-    return None if tick is None else int(tick)
+    key = "tick_ms" if "tick_ms" in data else "tick_ns" if "tick_ns" in data else None
+    if key is None:
+        if mode == "tick":
+            raise SpecError(f"{source}: mode \"tick\" needs tick_ms (or tick_ns)")
+        return None
+    value, scale = data[key], 1_000_000 if key == "tick_ms" else 1
+    lo, hi = TICK_NS_RANGE
+    if not _is_number(value) or not lo <= value * scale <= hi:
+        raise SpecError(f"{source}: `{key}` must be a number from {lo / scale:g} to {hi / scale:g}"
+                        f" (1 ns to a day), not {_shown(value)}")
+    return int(value * scale)
+
+
+def _is_number(value: Any) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _where(source: str, i: int, entry: dict) -> str:
     topic = entry.get("topic", "?") if isinstance(entry, dict) else "?"
     fld = entry.get("field", "") if isinstance(entry, dict) else ""
-    return f"{source}: channel entry {i + 1} ({topic}{':' + fld if fld else ''})"
+    return f"{source}: channel entry {i + 1} ({topic}{f':{fld}' if fld else ''})"
 
 
 def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
@@ -294,30 +339,69 @@ def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
     fld = entry.get("field", "")
     if not isinstance(fld, str):
         raise SpecError(f"{where}: `field` must be a string")
+    if not isinstance(entry.get("name", ""), str):
+        raise SpecError(f"{where}: `name` must be a string")
     try:
         parse_field_path(fld)
     except FieldPathError as err:
         raise SpecError(f"{where}: {err}") from err
-    name = entry.get("name") or (entry["topic"] if topics.count(entry["topic"]) == 1 or not fld
+    name = entry.get("name") or (entry["topic"] if topics[entry["topic"]] == 1 or not fld
                                  else f"{entry['topic']}:{fld}")
-    return ChannelSpec(entry["topic"], fld, entry["role"], str(name), _build_symbolizer(entry, where))
+    max_symbols = _max_symbols(entry, where)
+    limit = max_symbols or MAX_SYMBOLS
+    return ChannelSpec(entry["topic"], fld, entry["role"], name,
+                       _build_symbolizer(entry, where, limit), max_symbols)
 
 
-def _numbers(value: Any, key: str, where: str) -> tuple[float, ...]:
-    if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                              for v in value):
-        raise SpecError(f"{where}: `{key}` must be a list of numbers")
-    return tuple(float(v) for v in value)
-
-
-def _positive(value: Any, key: str, where: str, integer: bool = False) -> Any:
-    kind = int if integer else (int, float)
-    if isinstance(value, bool) or not isinstance(value, kind) or value <= 0:
-        raise SpecError(f"{where}: `{key}` must be a positive {'integer' if integer else 'number'}")
+def _max_symbols(entry: dict, where: str) -> int | None:
+    if "max_symbols" not in entry:
+        return None
+    value = entry["max_symbols"]
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_SYMBOLS_LIMIT:
+        raise SpecError(f"{where}: `max_symbols` must be an integer from 1 to {MAX_SYMBOLS_LIMIT:,}, "
+                        f"not {_shown(value)}")
     return value
 
 
-def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
+def _numbers(value: Any, key: str, where: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or not all(_is_number(v) for v in value):
+        raise SpecError(f"{where}: `{key}` must be a list of finite numbers")
+    return tuple(float(v) for v in value)
+
+
+def _count(value: Any, key: str, where: str, limit: int) -> int:
+    """A positive integer of at most ``limit`` (symbols of the channel)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limit:
+        raise SpecError(f"{where}: `{key}` must be an integer from 1 to {limit:,} (the channel's "
+                        f"symbol limit; raise it with max_symbols), not {_shown(value)}")
+    return value
+
+
+def _increasing(value: Any, key: str, where: str, limit: int) -> tuple[float, ...]:
+    edges = _numbers(value, key, where)
+    if not edges or any(a >= b for a, b in zip(edges, edges[1:])):
+        raise SpecError(f"{where}: `{key}` must be a non-empty, strictly increasing list")
+    if len(edges) >= limit:
+        raise SpecError(f"{where}: `{key}` makes {len(edges) + 1:,} bins; at most {limit:,} "
+                        f"(raise it with max_symbols)")
+    return edges
+
+
+def _values(value: Any, where: str, limit: int) -> tuple:
+    if not isinstance(value, list):
+        raise SpecError(f"{where}: `values` must be a list of distinct values")
+    for v in value:
+        if not isinstance(v, (str, int, float)) or isinstance(v, float) and not math.isfinite(v):
+            raise SpecError(f"{where}: `values` may hold strings, integers, finite numbers and "
+                            f"booleans, not {_shown(v)}")
+    if len(set(value)) != len(value):
+        raise SpecError(f"{where}: `values` must be distinct (1, 1.0 and true are the same value)")
+    if len(value) > limit:
+        raise SpecError(f"{where}: {len(value):,} `values`; at most {limit:,} (raise it with max_symbols)")
+    return tuple(value)
+
+
+def _build_symbolizer(entry: dict, where: str, limit: int) -> Symbolizer:
     kinds = [k for k in ("width", "range", "quantiles") if k in entry]
     if "edges" in entry and "quantiles" not in entry:
         kinds.append("edges")
@@ -325,44 +409,49 @@ def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
     if "values" in entry and stray:
         raise SpecError(f"{where}: `values` (categorical) cannot be combined with `{stray[0]}` (bins)")
     if "values" in entry:
-        values = entry["values"]
-        if not isinstance(values, list) or len(set(map(repr, values))) != len(values):
-            raise SpecError(f"{where}: `values` must be a list of distinct values")
-        return Categorical(tuple(values))
+        return Categorical(_values(entry["values"], where, limit))
     if not kinds:
         if stray:
             raise SpecError(f"{where}: `{stray[0]}` needs one of width, range (+count), edges, quantiles")
         return Categorical()
     if len(kinds) > 1:
         raise SpecError(f"{where}: choose one binning: {' or '.join(kinds)}")
-    return _build_bins(entry, kinds[0], where)
+    return _build_bins(entry, kinds[0], where, limit)
 
 
-def _build_bins(entry: dict, kind: str, where: str) -> Bins:
+def _build_bins(entry: dict, kind: str, where: str, limit: int) -> Bins:
     wrap = entry.get("wrap", False)
     if not isinstance(wrap, bool):
         raise SpecError(f"{where}: `wrap` must be true or false")
     if wrap and kind != "range":
         raise SpecError(f"{where}: `wrap` needs `range` (the period) and `count`")
     if kind == "width":
-        origin = entry.get("origin", 0.0)
-        if isinstance(origin, bool) or not isinstance(origin, (int, float)):
-            raise SpecError(f"{where}: `origin` must be a number")
-        return Bins(width=float(_positive(entry["width"], "width", where)), origin=float(origin))
+        return _width_bins(entry, where)
     if kind == "range":
         lo_hi = _numbers(entry["range"], "range", where)
-        if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1]:
-            raise SpecError(f"{where}: `range` must be [low, high] with low < high")
+        if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1] or not math.isfinite(lo_hi[1] - lo_hi[0]):
+            raise SpecError(f"{where}: `range` must be [low, high] with low < high, both finite")
         if "count" not in entry:
             raise SpecError(f"{where}: `range` needs `count`, the number of bins")
-        return Bins(range=lo_hi, count=_positive(entry["count"], "count", where, True), wrap=wrap)
+        return Bins(range=lo_hi, count=_count(entry["count"], "count", where, limit), wrap=wrap)
     if kind == "edges":
-        edges = _numbers(entry["edges"], "edges", where)
-        if not edges or list(edges) != sorted(set(edges)):
-            raise SpecError(f"{where}: `edges` must be a non-empty increasing list")
-        return Bins(edges=edges)
+        return Bins(edges=_increasing(entry["edges"], "edges", where, limit))
+    quantiles = _count(entry["quantiles"], "quantiles", where, limit)
     fitted = _numbers(entry["edges"], "edges", where) if "edges" in entry else None
-    return Bins(quantiles=_positive(entry["quantiles"], "quantiles", where, True), edges=fitted)
+    if fitted is not None and (len(fitted) >= quantiles or any(a >= b for a, b in zip(fitted, fitted[1:]))):
+        raise SpecError(f"{where}: fitted `edges` must be strictly increasing, fewer than `quantiles`")
+    return Bins(quantiles=quantiles, edges=fitted)
+
+
+def _width_bins(entry: dict, where: str) -> Bins:
+    width, origin = entry["width"], entry.get("origin", 0.0)
+    lo, hi = WIDTH_RANGE
+    if not _is_number(width) or not lo <= width <= hi:
+        raise SpecError(f"{where}: `width` must be a number from {lo:g} to {hi:g}, not {_shown(width)}")
+    if not _is_number(origin) or abs(origin) > MAX_ORIGIN:
+        raise SpecError(f"{where}: `origin` must be a finite number within +-{MAX_ORIGIN:g}, "
+                        f"not {_shown(origin)}")
+    return Bins(width=float(width), origin=float(origin))
 
 
 # --- CLI shorthand ------------------------------------------------------------------------

@@ -33,6 +33,7 @@ back) and deterministically: the same library gives the same bytes.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -48,13 +49,13 @@ import pyarrow.parquet as pq
 
 from slearn import __version__
 from slearn.errors import InputError, LibraryFormatError, SpecError
+from slearn.files import atomic_write, check_output, regular_file
 from slearn.library import PatternLibrary
+from slearn.library_header import FORMAT_NAME, FORMAT_VERSION, parse_header
 from slearn.spec import Bins, Spec
 from slearn.tokens import OBSERVATION, TokenTable
 from slearn.vocabulary import Vocabulary
 
-FORMAT_NAME = "slearn-library"
-FORMAT_VERSION = 1
 METADATA_KEY = b"slearn"
 TABLES = ("vocabulary", "token", "pattern")
 ROW_GROUP_ROWS = 1 << 20
@@ -143,21 +144,8 @@ def save_library(path: str | os.PathLike, library: PatternLibrary, vocabulary: V
     tables = [_vocabulary_table(vocabulary, spec, path), _token_table(library.tokens),
               _pattern_table(library, path)]
     metadata = _metadata(library, vocabulary, spec, params, provenance, [len(t) for t in tables])
-    _write_atomic(path, tables, metadata)
+    _write_atomic(path, tables, metadata, overwrite)
     return SaveSummary(str(path), len(library), path.stat().st_size)
-
-
-def check_output(path: str | os.PathLike, overwrite: bool) -> None:
-    """Refuse an existing output unless ``overwrite``; refuse a missing folder.
-
-    Raises:
-        InputError: naming the file and what to do.
-    """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise InputError(f"{path} already exists: pass --force to overwrite it")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: folder {path.parent} does not exist: create it first")
 
 
 def _metadata(library: PatternLibrary, vocabulary: Vocabulary, spec: Spec | None, params: dict,
@@ -255,36 +243,22 @@ def _pattern_table(library: PatternLibrary, path: Path) -> pa.Table:
     })
 
 
-def _write_atomic(path: Path, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+def _write_atomic(path: Path, tables: list[pa.Table], metadata: dict[bytes, bytes],
+                  overwrite: bool) -> None:
     rows = sum(len(t) for t in tables)
-    try:
-        _write_parquet(tmp, tables, metadata)
-        _verify(tmp, rows, metadata, path)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync(path.parent)
+    with atomic_write(path, overwrite=overwrite) as out:
+        _write_parquet(out.file, tables, metadata)
+        out.file.flush()
+        _verify(out.tmp_path, rows, metadata, path)
     _verify(path, rows, metadata, path)
 
 
-def _write_parquet(tmp: Path, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
-    with pq.ParquetWriter(tmp, SCHEMA.with_metadata(metadata), compression="zstd",
+def _write_parquet(sink, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
+    with pq.ParquetWriter(sink, SCHEMA.with_metadata(metadata), compression="zstd",
                           write_page_checksum=True) as writer:
         for table in tables:
             if len(table):
                 writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
-    _fsync(tmp)
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _verify(written: Path, rows: int, metadata: dict[bytes, bytes], path: Path) -> None:
@@ -312,39 +286,31 @@ def _reading(path: Path) -> Iterator[None]:
         yield
     except LibraryFormatError:
         raise
-    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, IndexError) as err:
+    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, IndexError, OverflowError,
+            RecursionError) as err:
         raise LibraryFormatError(f"{path}: corrupted pattern library ({type(err).__name__}: "
                                  f"{_one_line(err)[:300]}): re-create it with `slearn learn`") from err
 
 
 def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
-    if not path.is_file():
-        raise LibraryFormatError(f"{path}: no such library file")
+    try:
+        regular_file(path, "library file")
+    except InputError as err:
+        raise LibraryFormatError(str(err)) from err
     try:
         parquet = pq.ParquetFile(path, page_checksum_verification=True)
-    except (pa.ArrowException, OSError) as err:
+        raw = (parquet.schema_arrow.metadata or {}).get(METADATA_KEY)
+        columns = _columns(parquet)
+    except (pa.ArrowException, OSError, ValueError) as err:  # a flipped bit can give UnicodeDecodeError
         raise LibraryFormatError(f"{path}: not a readable Parquet file, truncated or corrupted "
                                  f"({_one_line(err)[:200]}): re-create it with `slearn learn`") from err
-    raw = (parquet.schema_arrow.metadata or {}).get(METADATA_KEY)
     if raw is None:
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library (no "
                                  f"'slearn' metadata): make libraries with `slearn learn`")
-    with _reading(path):
-        doc = json.loads(raw)
-    _check_format(doc, path)
-    return parquet, doc
-
-
-def _check_format(doc: Any, path: Path) -> None:
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
-        raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library "
-                                 f"(format {doc.get('format') if isinstance(doc, dict) else None!r})")
-    version = doc.get("version")
-    if not isinstance(version, int) or version < 1:
-        raise LibraryFormatError(f"{path}: invalid library format version {version!r}")
-    if version > FORMAT_VERSION:
-        raise LibraryFormatError(f"{path}: library format version {version} is newer than this "
-                                 f"slearn {__version__} reads (up to {FORMAT_VERSION}): upgrade slearn")
+    if columns != _stored_columns():  # pyarrow aborts the process on some mislabelled columns
+        raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
+                                 f"library's): re-create it with `slearn learn`")
+    return parquet, parse_header(raw, path)
 
 
 def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, list[int]]:
@@ -358,7 +324,7 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
         k = int(np.searchsorted(bounds, start, side="right")) - 1
         if k >= len(TABLES) or start + group.num_rows > bounds[k + 1]:
             raise LibraryFormatError(f"{path}: row groups do not match the library's tables")
-        _check_group_table(group, TABLES[k], path)
+        _check_group_table(parquet, i, TABLES[k], path)
         groups[TABLES[k]].append(i)
         start += group.num_rows
     if start != bounds[-1]:
@@ -366,9 +332,25 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
     return groups
 
 
-def _check_group_table(group, name: str, path: Path) -> None:
-    stats = group.column(0).statistics
-    if stats is not None and stats.has_min_max and not stats.min == stats.max == name:
+def _columns(parquet: pq.ParquetFile) -> tuple:
+    """The Arrow schema and the Parquet columns (path, physical type, levels) of a file."""
+    return (parquet.schema_arrow.remove_metadata(),
+            [(c.path, c.physical_type, c.max_definition_level, c.max_repetition_level)
+             for c in parquet.schema])
+
+
+@functools.cache
+def _stored_columns() -> tuple:
+    """:func:`_columns` of a file written with :data:`SCHEMA`."""
+    sink = pa.BufferOutputStream()
+    pq.write_table(SCHEMA.empty_table(), sink)
+    return _columns(pq.ParquetFile(pa.BufferReader(sink.getvalue())))
+
+
+def _check_group_table(parquet: pq.ParquetFile, i: int, name: str, path: Path) -> None:
+    # The column is read, not its statistics: pyarrow aborts the process on some damaged
+    # column metadata (row_group(i).column(j)) where reading raises an error.
+    if parquet.read_row_group(i, columns=["table"]).column(0).unique().to_pylist() != [name]:
         raise LibraryFormatError(f"{path}: a row group of table {name!r} holds other rows")
 
 
@@ -454,6 +436,8 @@ def _read_pattern_columns(parquet: pq.ParquetFile, groups: list[int], path: Path
     ends = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)])
     if len(sizes) and sizes.min() < 0 or not np.array_equal(ends[token_offsets], symbol_offsets):
         raise LibraryFormatError(f"{path}: pattern token sizes do not add up to the patterns")
+    if len(columns.count) and columns.count.min() < 1:
+        raise LibraryFormatError(f"{path}: a pattern count is not positive: re-create the library")
     return columns
 
 
@@ -518,10 +502,10 @@ def describe(path: str | os.PathLike) -> "LibraryDescription":
         LibraryFormatError: as :func:`load_library`.
     """
     path = Path(path)
+    vocabulary = load_library(path).vocabulary  # the checks replay, resume and merge make
     parquet, doc = _open(path)
     with _reading(path):
         groups = _row_groups(parquet, doc, path)
-        vocabulary = _read_vocabulary(parquet, groups["vocabulary"], doc, path)
         columns = _read_pattern_columns(parquet, groups["pattern"], path)
     size, n = path.stat().st_size, len(columns.count)
     steps = np.diff(columns.token_offsets) // 2
@@ -766,12 +750,13 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     library files themselves (path, size, sha256).
 
     Raises:
-        InputError: fewer than two libraries, or ``output`` exists without ``overwrite``.
+        InputError: fewer than two libraries, ``output`` exists without ``overwrite``, or
+            ``output`` is one of the libraries (refused even with ``overwrite``).
         LibraryFormatError, SpecError: as :func:`load_library` and :func:`merge_libraries`.
     """
     if len(paths) < 2:
         raise InputError("merge needs at least two libraries")
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=paths)
     merged = load_library(paths[0])
     for path in paths[1:]:
         merged = merge_libraries(merged, load_library(path))

@@ -68,7 +68,7 @@ def test_suggest_spec_skeleton_becomes_a_spec(log, tmp_path):
     spec = load_spec(tmp_path / "one.toml")
     assert spec.channels[0].topic == "/cmd" and spec.channels[0].field == "command"
     refused = run(log, "--suggest-spec", target)
-    assert refused.exit_code == 1 and "exists: use --force" in refused.stderr
+    assert refused.exit_code == 1 and "already exists: pass --force" in refused.stderr
     assert run(log, "--suggest-spec", target, "--force").exit_code == 0
 
 

@@ -155,7 +155,7 @@ ENTRY = '[[channel]]\ntopic = "/t"\nfield = "x"\nrole = "observation"\n'
     (ENTRY + "range = [0, 1]\n", "`range` needs `count`"),
     (ENTRY + "range = [1, 0]\ncount = 2\n", "low < high"),
     (ENTRY + "width = 1\nrange = [0, 1]\ncount = 2\n", "choose one binning"),
-    (ENTRY + "width = 0\n", "`width` must be a positive number"),
+    (ENTRY + "width = 0\n", "`width` must be a number from 1e-300 to 1e\\+300, not 0"),
     (ENTRY + "width = 1\nwrap = true\n", "`wrap` needs `range`"),
     (ENTRY + "edges = [3, 1]\n", "increasing"),
     (ENTRY + "values = ['a']\ncount = 3\n", "cannot be combined|needs one of"),

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
 from slearn.cli import EXIT_TRUNCATED
-from slearn.errors import InputError
+from slearn.files import check_output, write_atomic
 from slearn.info import ChannelProfile, LogProfile, describe, suggest_spec
 
 
@@ -58,18 +57,10 @@ def _as_text(result, show_fields: bool) -> str:
     return json.dumps(_as_dict(result), indent=2, default=str)
 
 
-def _write_new(path: str, text: str, force: bool) -> None:
-    target = Path(path)
-    if target.exists() and not force:
-        raise InputError(f"{path} exists: use --force to overwrite it")
-    try:
-        target.write_text(text, encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
 
 
 @click.command("info")
-@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @click.option("--fields/--no-fields", default=True, help="List decodable scalar fields.")
 @click.option("--suggest-spec", "spec_out", type=click.Path(dir_okay=False),
@@ -83,6 +74,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     Exits 3 when a log is truncated (what could be read is still shown). Pattern
     libraries (.parquet) are described by slearn.storage once it exists.
     """
+    if spec_out:
+        check_output(spec_out, force, inputs=paths)
     results = [describe(path) for path in paths]
     logs = [r for r in results if isinstance(r, LogProfile)]
     if as_json:
@@ -90,7 +83,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     else:
         click.echo("\n\n".join(_as_text(r, fields) for r in results))
     if spec_out:
-        _write_new(spec_out, suggest_spec(logs), force)
+        write_atomic(spec_out, suggest_spec(logs), overwrite=force, inputs=paths)
         click.echo(f"slearn: wrote spec skeleton {spec_out}", err=True)
     broken = [log for log in logs if log.report.truncated]
     for log in broken:

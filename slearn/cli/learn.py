@@ -9,7 +9,9 @@ import warnings
 import click
 
 from slearn.cli import EXIT_TRUNCATED
+from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
+from slearn.files import refuse_inputs
 from slearn.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
 from slearn.spec import MODES, Spec, load_spec, spec_from_options
 
@@ -54,13 +56,13 @@ def _progress(total: int):
 @click.option("--channel", "channels", multiple=True, metavar="TOPIC:FIELD:ROLE[:OPTIONS]",
               help="A spec entry (repeatable), e.g. /pointer/command:command:action.")
 @click.option("--mode", type=click.Choice(MODES), help="Event mode for --channel (default change).")
-@click.option("--tick-ms", type=float, help="Tick period for --mode tick.")
-@click.option("--max-length", type=click.IntRange(min=1), help="Longest pattern in steps [default 5].")
-@click.option("--max-patterns", type=click.IntRange(min=16),
+@click.option("--tick-ms", type=FiniteFloat(1e-6, 86_400_000), help="Tick period for --mode tick.")
+@click.option("--max-length", type=LENGTH, help="Longest pattern in steps [default 5].")
+@click.option("--max-patterns", type=PATTERNS,
               help="Forget the rarest, oldest patterns beyond this many [default: keep all].")
 @click.option("--scoring", type=click.Choice(SCORING_RULES),
               help="Scoring rule stored for predictors [default adaptive].")
-@click.option("--resume", type=click.Path(dir_okay=False),
+@click.option("--resume", type=click.Path(),
               help="Go on learning from this library (its spec, vocabulary and parameters).")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
@@ -75,6 +77,7 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     Exits 3 when a log was truncated: what could be read is learned and saved.
     """
     spec = _spec(spec_path, channels, mode, tick_ms)
+    refuse_inputs(output, [spec_path] if spec_path else [])
     paths = expand_paths(list(logs))
     progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings():

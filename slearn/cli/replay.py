@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
+import os
 
 import click
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
+from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
+from slearn.files import check_output
 from slearn.library import DEFAULT_MAX_LENGTH
 from slearn.predictor import SCORINGS
 
@@ -17,6 +19,8 @@ _MCAP_MAGIC = b"\x89MCAP"
 
 
 def _is_mcap(path: str) -> bool:
+    if not os.path.isfile(path):  # never open a FIFO: it would block
+        return path.endswith(".mcap")
     try:
         with open(path, "rb") as f:
             return f.read(5) == _MCAP_MAGIC
@@ -24,22 +28,23 @@ def _is_mcap(path: str) -> bool:
         return path.endswith(".mcap")
 
 
-def _check_outputs(paths: list[str | None], force: bool) -> None:
+def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
+    """Refuse outputs that exist (without --force) or are inputs (always), before replaying."""
     for path in paths:
-        if path and Path(path).exists() and not Path(path).is_dir() and not force:
-            raise InputError(f"{path} already exists: pass --force to overwrite it")
+        if path:
+            check_output(path, force, inputs)
 
 
 @click.command("replay")
-@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
 @click.option("--spec", "spec", type=click.Path(dir_okay=False),
               help="Channel spec (TOML): start from an empty library (implies --online).")
 @click.option("--window", type=click.IntRange(min=1), help="Steps per learning-curve window.")
-@click.option("--top-k", type=click.IntRange(min=1), default=3, show_default=True,
+@click.option("--top-k", type=click.IntRange(1, MAX_TOP_K), default=3, show_default=True,
               help="Ranked guesses that count for the top-k accuracy.")
 @click.option("--scoring", type=click.Choice(SCORINGS), help="Override the library's scoring rule.")
-@click.option("--max-length", type=click.IntRange(min=1), default=DEFAULT_MAX_LENGTH,
+@click.option("--max-length", type=LENGTH, default=DEFAULT_MAX_LENGTH,
               show_default=True, help="Pattern length of an empty library (--spec).")
 @click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
               help="Training log for the baselines (repeat; default: the library's own inputs "
@@ -51,7 +56,7 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
               help="Write the log annotated with /slearn/prediction, /slearn/correct and "
                    "/slearn/surprise (a folder for several logs).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
-@click.option("--fail-under", type=click.FloatRange(0, 100),
+@click.option("--fail-under", type=FiniteFloat(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
@@ -69,16 +74,17 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     from slearn.replay.evaluate import replay_logs
 
     library, logs = _split(paths, spec)
-    _check_outputs([plot, report, write_mcap], force)
+    inputs = [*paths, *baseline_train, *([spec] if spec else [])]
+    _check_outputs([plot, report], force, inputs)
     if write_mcap:
         from slearn.replay.annotate import annotated_paths
 
-        _check_outputs(annotated_paths(logs, write_mcap), force)
+        _check_outputs(annotated_paths(logs, write_mcap), force, inputs)
     evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
                              window=window, max_length=max_length, scoring=scoring,
                              baseline_logs=baseline_train or None,
                              keep_outcomes=write_mcap is not None, progress=not quiet)
-    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet)
+    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
     _render(evaluation, outputs, as_json)
     for warning in evaluation.warnings:
         click.echo(f"slearn: warning: {warning}", err=True)
@@ -106,7 +112,7 @@ def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[s
 
 
 def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap: str | None,
-                   force: bool, quiet: bool) -> dict:
+                   force: bool, quiet: bool, inputs: list[str]) -> dict:
     outputs: dict = {}
     if plot:
         from slearn.replay.plots import write_curves
@@ -121,7 +127,7 @@ def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap:
     if write_mcap:
         from slearn.replay.annotate import write_annotated
 
-        written = write_annotated(evaluation, write_mcap, overwrite=force)
+        written = write_annotated(evaluation, write_mcap, overwrite=force, inputs=inputs)
         outputs["annotated"] = [w.to_dict() for w in written]
     for kind, value in outputs.items():
         if not quiet:
