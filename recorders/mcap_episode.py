@@ -54,6 +54,7 @@ class EpisodeWriter:
             :class:`~slearn.errors.InputError`.
         keep_partial: when the block raises, keep what was written as a valid file.
         chunk_size: bytes per zstd-compressed chunk.
+        profile: the header's profile (``""``; copies of ROS logs keep ``ros1``/``ros2``).
 
     Example::
 
@@ -64,8 +65,9 @@ class EpisodeWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
-                 keep_partial: bool = False, chunk_size: int = 1 << 20) -> None:
+                 keep_partial: bool = False, chunk_size: int = 1 << 20, profile: str = "") -> None:
         self.path = Path(path)
+        self.profile = profile
         self.overwrite = overwrite
         self.keep_partial = keep_partial
         self._chunk_size = chunk_size
@@ -84,7 +86,7 @@ class EpisodeWriter:
         self._file = os.fdopen(fd, "wb")
         self._writer = Writer(self._file, chunk_size=self._chunk_size,
                               compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library=f"slearn {__version__}")
+        self._writer.start(profile=self.profile, library=f"slearn {__version__}")
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,

@@ -475,15 +475,15 @@ def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path,
 def test_step_times_match_the_steps_of_every_mode(tmp_path, mode, tick_ns):
     from dataclasses import replace
 
-    from slearn.replay.annotate import step_times
-    from slearn.serialize import read_episodes
+    from slearn.serialize import iter_step_times, read_episodes
 
     path = tmp_path / "p.mcap"
     record_pointer(PointerConfig("simple", trials=200, seed=1), path)
     spec = replace(pointer_spec(), mode=mode, tick_ns=tick_ns)
     vocabulary = Vocabulary()
     [(_, episode, _)] = list(read_episodes([path], spec, vocabulary))
-    times = step_times(str(path), spec, vocabulary)
+    [(name, times)] = list(iter_step_times(str(path), spec, vocabulary))
+    assert name == str(path)
     assert len(times) == len(episode)
     assert times[0] == 0 and (np.diff(times) > 0).all()
     if mode != "tick":
