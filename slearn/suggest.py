@@ -101,6 +101,8 @@ def _grid(values: list[float]) -> float | None:
     step = min(b - a for a, b in zip(values, values[1:]))
     if step <= 0 or (values[-1] - values[0]) / step > GRID_MAX:
         return None
+    if step < 1e-3 * max(abs(values[0]), abs(values[-1]), 1.0):
+        return None  # encoder ticks of a joint that barely moves: no grid worth a bin each
     ok = all(abs((v - values[0]) / step - round((v - values[0]) / step)) < 1e-3 for v in values)
     return step if ok else None
 
