@@ -13,7 +13,8 @@ are those of MCAP logs.
   type in several files are one channel. ``sqlite3`` storage is read with ``rosbags``.
 - A **ROS 2 ``.db3``** file is read with ``rosbags``; when the file carries no message
   definitions (before ROS 2 Iron), those of ``rosbags``' newest type store are used.
-- A **ROS 1 ``.bag``** is read with ``rosbags``.
+- A **ROS 1 ``.bag``** is read with ``rosbags``; a bag whose index is missing or damaged
+  (a recorder that was killed) is read linearly instead (:mod:`slearn.ros1_salvage`).
 
 A file that breaks while being read (``rosbags`` raises) keeps what was read before: the
 report notes where it broke, and a :class:`~slearn.errors.TruncatedLogWarning` follows as
@@ -57,8 +58,21 @@ def open_log(path: str | os.PathLike):
     if path.suffix.lower() == ".db3":
         return RosbagsLog(path, "ros2")
     if path.suffix.lower() == ".bag":
-        return RosbagsLog(path, "ros1")
+        return _open_ros1(path)
     return McapLog(path)
+
+
+def _open_ros1(path: Path):
+    """A ROS 1 bag through its index (``rosbags``), else read linearly to salvage it."""
+    from slearn.ros1_salvage import Ros1Salvage
+
+    try:
+        return RosbagsLog(path, "ros1")
+    except InputError as indexed_failure:
+        try:
+            return Ros1Salvage(path)
+        except InputError:
+            raise indexed_failure from None
 
 
 def log_files(path: str | os.PathLike) -> list[Path]:

@@ -166,3 +166,26 @@ def test_rosbag2_own_split_bags_are_one_log():
         assert n == 6074 and len({c.topic for c in log.channels.values()}) == 8
         times = [m.log_time_ns for m in log.iter_messages()]
     assert times == sorted(times) and np.unique(times).size > 1
+
+
+def test_a_ros1_bag_cut_short_is_salvaged_in_log_time_order(tmp_path):
+    messages = pointer_messages(1500)
+    whole = write_ros1_bag(tmp_path / "whole.bag", messages)
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+    with open_log(cut) as log:
+        salvaged = [(m.topic, m.log_time_ns) for m in log.iter_messages()]
+        assert log.report.truncated and "runs past the end of the file" in log.report.describe()
+    assert 0 < len(salvaged) < len(messages)
+    assert salvaged == [(t, time_ns) for t, time_ns, _ in messages[:len(salvaged)]]
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[channel]]\ntopic = "/cmd"\nfield = "data"\nrole = "action"\n'
+                    '[[channel]]\ntopic = "/pos"\nfield = "data"\nrole = "observation"\n')
+    learned = CliRunner().invoke(main, ["learn", str(cut), "--spec", str(spec), "-o",
+                                        str(tmp_path / "lib.parquet"), "--json"])
+    assert learned.exit_code == EXIT_TRUNCATED and "truncated or corrupt log" in learned.stderr
+    assert json.loads(learned.stdout)["steps"] > 500
+    not_a_bag = tmp_path / "x.bag"
+    not_a_bag.write_bytes(b"hello")
+    with pytest.raises(InputError, match="cannot be read as a ROS 1 bag"):
+        open_log(not_a_bag)
