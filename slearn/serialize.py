@@ -53,7 +53,8 @@ from slearn.episodes import EPISODE_TOPIC, episode_name
 from slearn.errors import DataWarning, InputError, SpecError, TruncatedLogWarning
 from slearn.mcap_read import ReadReport
 from slearn.slicing import TimeSlice
-from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec
+from slearn.spec import (POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec,
+                         value_labels)
 from slearn.stream import Episode
 from slearn.vocabulary import ACTION, Vocabulary
 
@@ -67,8 +68,7 @@ def prepare_vocabulary(spec: Spec, vocabulary: Vocabulary) -> Vocabulary:
         vocabulary.add_channel(entry.name, entry.role)
         for value in entry.symbolizer.declared_values() or ():
             vocabulary.symbol(entry.name, value)
-        if isinstance(entry.symbolizer, Bins):
-            vocabulary.value_labels[entry.name] = entry.value_label
+    vocabulary.value_labels.update(value_labels(spec))
     return vocabulary
 
 

@@ -318,6 +318,11 @@ class Spec:
         return replace(self, channels=tuple(channels))
 
 
+def value_labels(spec: Spec) -> dict[str, Any]:
+    """Per binned entry name, the function that shows its bins as value ranges."""
+    return {c.name: c.value_label for c in spec.channels if isinstance(c.symbolizer, Bins)}
+
+
 def load_spec(path: str | Path) -> Spec:
     """Read a TOML spec file.
 
