@@ -325,7 +325,8 @@ def _check_fits(source: Path, path: Path, spec, folders: dict[str, Path]) -> str
             for file in folder.iterdir():
                 file.unlink()
         raise InputError(f"--source {source}: the pr2-sample spec does not fit it: {err}") from err
-    return f"{report.n_messages:,} messages read, {len(episode)} steps and {episode.n_events} events under the spec"
+    return (f"{report.n_messages:,} messages read, {len(episode)} steps and {episode.n_events} "
+            f"events under the spec")
 
 
 DATASETS: dict[str, Dataset] = {

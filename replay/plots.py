@@ -90,4 +90,5 @@ def _overall(episodes) -> tuple[str, np.ndarray, np.ndarray, str]:
         correct[:k] += e.curve.correct
     longest = max(episodes, key=lambda e: len(e.curve.start)).curve
     with np.errstate(invalid="ignore", divide="ignore"):
-        return OVERALL, longest.start + longest.window / 2, correct / np.where(events > 0, events, np.nan), "-"
+        accuracy = correct / np.where(events > 0, events, np.nan)
+    return OVERALL, longest.start + longest.window / 2, accuracy, "-"

@@ -284,7 +284,8 @@ class RosbagsLog(_LogBase):
                 return
             self.report.n_messages += 1
             if on_progress is not None and self.report.n_messages % 4096 == 0:
-                on_progress(self.report.n_messages * self.report.size_bytes // total, self.report.size_bytes)
+                size = self.report.size_bytes
+                on_progress(self.report.n_messages * size // total, size)
             yield RawMessage(self._channels[connection.id], log_time, log_time, 0, bytes(data))
 
     def iter_metadata(self) -> Iterator[tuple[str, dict[str, str]]]:

@@ -428,7 +428,8 @@ def _log_episodes(path: str, spec: Spec, vocabulary: Vocabulary, report: ReadRep
     pending = next(stream, None)
     if pending is None:
         builder = _StepBuilder()
-        yield path, episode_from_values((), spec, vocabulary, path, ranges, builder), builder.step_times(), True
+        episode = episode_from_values((), spec, vocabulary, path, ranges, builder)
+        yield path, episode, builder.step_times(), True
     while pending is not None:
         key, first = pending[0], pending[1:]
         pending = None

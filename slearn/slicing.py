@@ -89,12 +89,14 @@ class TimeSlice:
         """One phrase, e.g. ``the first 70 % of seconds 10-end of each log``."""
         bounds = ""
         if self.start is not None or self.end is not None:
-            bounds = f"{self.start.text if self.start else 'start'} to {self.end.text if self.end else 'end'}"
+            start, end = self.start.text if self.start else "start", self.end.text if self.end else "end"
+            bounds = f"{start} to {end}"
         if self.split is None:
             return f"{bounds} of each log"
         share = self.split if self.part == TRAIN else 1 - self.split
         side = "first" if self.part == TRAIN else "last"
-        return f"the {side} {100 * share:.0f} % of the time of each log" + (f" ({bounds})" if bounds else "")
+        where = f" ({bounds})" if bounds else ""
+        return f"the {side} {100 * share:.0f} % of the time of each log{where}"
 
     def to_dict(self) -> dict:
         """Plain JSON-able data (:func:`slice_from_dict` reads it back)."""

@@ -217,7 +217,8 @@ def _widen(into: ChannelProfile, other: ChannelProfile) -> None:
         for value in info.distinct:
             if value not in mine.distinct:
                 mine.distinct.append(value)
-        mine.more_distinct = mine.more_distinct or info.more_distinct or len(mine.distinct) > CATEGORICAL_MAX
+        mine.more_distinct = (mine.more_distinct or info.more_distinct
+                              or len(mine.distinct) > CATEGORICAL_MAX)
 
 
 def suggest_spec(profiles: Iterable[LogProfile]) -> str:

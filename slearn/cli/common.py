@@ -26,7 +26,8 @@ def slice_options(split: bool) -> Callable:
         click.option("--start", metavar="TIME",
                      help="Read each log from this time on: seconds from its start (12.5) or an "
                           "ISO 8601 time (2024-05-01T12:00:03Z)."),
-        click.option("--end", metavar="TIME", help="Read each log up to this time (excluded); as --start."),
+        click.option("--end", metavar="TIME",
+                     help="Read each log up to this time (excluded); as --start."),
         click.option("--topics", metavar="T1,T2", help="Only these topics (comma-separated)."),
     ]
     if split:
