@@ -569,11 +569,13 @@ def _split_field_colons(text: str) -> list[str]:
 
 
 def spec_from_options(channels: Iterable[str], mode: str = DEFAULT_MODE,
-                      tick_ms: float | None = None) -> Spec:
-    """Build a spec from ``--channel`` shorthands, a mode and an optional tick period."""
+                      tick_ms: float | None = None, phase_ms: float | None = None) -> Spec:
+    """Build a spec from ``--channel`` shorthands, a mode, an optional tick period and phase."""
     data: dict[str, Any] = {"mode": mode, "channel": [parse_channel_option(c) for c in channels]}
     if tick_ms is not None:
         data["tick_ms"] = tick_ms
+    if phase_ms is not None:
+        data["phase_ms"] = phase_ms
     return _build_spec(data, "--channel options")
 
 

@@ -16,17 +16,18 @@ from slearn.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
 
 
 def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
-          tick_ms: float | None) -> Spec | None:
+          tick_ms: float | None, phase_ms: float | None) -> Spec | None:
     if spec_path and channels:
         raise click.UsageError("give --spec or --channel, not both")
     if spec_path:
-        if mode or tick_ms:
-            raise click.UsageError("--mode and --tick-ms go with --channel; a spec file has its own")
+        if mode or tick_ms or phase_ms:
+            raise click.UsageError("--mode, --tick-ms and --phase-ms go with --channel; a spec file "
+                                   "has its own")
         return load_spec(spec_path)
     if channels:
-        return spec_from_options(channels, mode or DEFAULT_MODE, tick_ms)
-    if mode or tick_ms:
-        raise click.UsageError("--mode and --tick-ms need --channel")
+        return spec_from_options(channels, mode or DEFAULT_MODE, tick_ms, phase_ms)
+    if mode or tick_ms or phase_ms:
+        raise click.UsageError("--mode, --tick-ms and --phase-ms need --channel")
     return None
 
 
@@ -57,6 +58,9 @@ def _progress(total: int):
 @click.option("--mode", type=click.Choice(MODES),
               help="Event mode for --channel (default message: every message is an event).")
 @click.option("--tick-ms", type=float, help="Tick period for --mode tick.")
+@click.option("--phase-ms", type=float,
+              help="--mode tick: sample the observations this long after each tick's commands "
+                   "(default one tick).")
 @click.option("--max-length", type=click.IntRange(min=1), help="Longest pattern in steps [default 5].")
 @click.option("--max-patterns", type=click.IntRange(min=16),
               help="Forget the rarest, oldest patterns beyond this many [default: keep all].")
@@ -71,7 +75,7 @@ def _progress(total: int):
 @click.pass_context
 def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: str | None,
             channels: tuple[str, ...], mode: str | None, tick_ms: float | None,
-            max_length: int | None, max_patterns: int | None, scoring: str | None,
+            phase_ms: float | None, max_length: int | None, max_patterns: int | None, scoring: str | None,
             resume: str | None, force: bool, start: str | None, end: str | None,
             topics: str | None, split: float | None, quiet: bool, as_json: bool) -> None:
     """Learn a pattern library from LOGS: MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files.
@@ -79,7 +83,7 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     Each log is an episode (or several, when it marks episode boundaries). Exits 3 when a
     log was truncated: what could be read is learned and saved.
     """
-    spec = _spec(spec_path, channels, mode, tick_ms)
+    spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
     if topics is not None:
         if spec is None:
             raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
