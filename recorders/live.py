@@ -35,6 +35,7 @@ from types import TracebackType
 from typing import Any, Callable, Iterable
 
 from slearn import __version__
+from slearn.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
 from slearn.errors import InputError, SlearnError
 from slearn.files import write_atomic
 from slearn.recorders.mcap_episode import EpisodeWriter
@@ -125,6 +126,14 @@ class EventFile:
         self._writer.write_encoded(channel_id, int(time_ns),
                                    json.dumps(payload, separators=(",", ":")).encode())
         self.counts[channel] += 1
+
+    def mark_episode(self, time_ns: int, episode: int, name: str = "") -> None:
+        """Start episode ``episode`` at ``time_ns`` (:mod:`slearn.episodes`): write the marker
+        before the episode's first event."""
+        if EPISODE_TOPIC not in self._ids:
+            self._ids[EPISODE_TOPIC] = self._writer.register_channel(EPISODE_TOPIC, EPISODE_SCHEMA_NAME,
+                                                                     EPISODE_SCHEMA)
+        self._writer.write(self._ids[EPISODE_TOPIC], int(time_ns), {"episode": episode, "name": name})
 
     def flush(self) -> None:
         """Close the current chunk (it then survives a killed process)."""

@@ -58,6 +58,7 @@ class EpisodeWriter:
         keep_partial: when the block raises, keep what was written as a valid file.
         chunk_size: bytes per zstd-compressed chunk.
         inputs: files the episode is made from; a target that is one of them is refused.
+        profile: the header's profile (``""``; copies of ROS logs keep ``ros1``/``ros2``).
 
     Example::
 
@@ -69,8 +70,9 @@ class EpisodeWriter:
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
                  keep_partial: bool = False, chunk_size: int = 1 << 20,
-                 inputs: Iterable[str | os.PathLike] = ()) -> None:
+                 inputs: Iterable[str | os.PathLike] = (), profile: str = "") -> None:
         self.path = Path(path)
+        self.profile = profile
         self.overwrite = overwrite
         self.keep_partial = keep_partial
         self._chunk_size = chunk_size
@@ -88,7 +90,7 @@ class EpisodeWriter:
             with self._writing():
                 self._writer = Writer(self._out.file, chunk_size=self._chunk_size,
                                       compression=CompressionType.ZSTD)
-                self._writer.start(profile="", library=f"slearn {__version__}")
+                self._writer.start(profile=self.profile, library=f"slearn {__version__}")
         except BaseException:
             self._out.discard()
             raise

@@ -9,7 +9,6 @@ import math
 import os
 from slearn.files import write_atomic
 from slearn.replay.evaluate import Evaluation
-from slearn.replay.metrics import Tally
 
 
 def _pct(x: float | None) -> str:
@@ -20,12 +19,32 @@ def _lift(points: float) -> str:
     return "-" if math.isnan(points) else f"{points:+.2f} pts"
 
 
-def _summary_rows(t: Tally) -> list[tuple[str, str, str, str]]:
-    """``(predictor, accuracy, abstained, lift of the library over it)`` rows."""
-    rows = [("library", _pct(t.accuracy), _pct(t.rate("abstained")), "")]
-    for name in ("frequency", "markov"):
-        rows.append((f"{name} baseline", _pct(t.rate(name)), _pct(t.rate(f"{name}_abstained")),
-                     _lift(100 * (t.accuracy - t.rate(name)))))
+def _span(interval: list[float] | None, scale: float = 100.0, signed: bool = False) -> str:
+    """``[a, b]`` of a 95 % interval (rates in percent, lifts in points)."""
+    if interval is None:
+        return "-"
+    fmt = "{:+.2f}" if signed else "{:.2f}"
+    a, b = (fmt.format(scale * x) for x in interval)
+    return f"[{a}, {b}]"
+
+
+def _summary_rows(e: Evaluation) -> list[tuple[str, str, str, str, str, str]]:
+    """``(predictor, accuracy, its 95 % interval, abstained, lift, the lift's interval)`` rows."""
+    t, h = e.totals, (e.honest.to_dict() if e.honest is not None else None)
+    rows = [("library", _pct(t.accuracy), _span(h and h["accuracy_interval"]),
+             _pct(t.rate("abstained")), "", "")]
+    for name in ("frequency", "markov", "persistence"):
+        b = h["baselines"][name] if h else None
+        if name == "persistence":
+            if b is None:
+                continue
+            accuracy, abstained = b["accuracy"], None
+            lift = math.nan if b["lift_points"] is None else b["lift_points"]
+        else:
+            accuracy, abstained = t.rate(name), t.rate(f"{name}_abstained")
+            lift = 100 * (t.accuracy - t.rate(name))
+        rows.append((f"{name} baseline", _pct(accuracy), _span(b and b["accuracy_interval"]),
+                     _pct(abstained), _lift(lift), _span(b and b["lift_interval_points"], 1.0, True)))
     return rows
 
 
@@ -33,15 +52,22 @@ def format_table(evaluation: Evaluation) -> str:
     """The replay as a plain-text report for a terminal."""
     e, t = evaluation, evaluation.totals
     library = (e.setup.get("library") or {}).get("path") or "(empty library)"
-    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} log(s), {t.events} predicted "
+    h = e.honest.to_dict() if e.honest is not None else None
+    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} episode(s), {t.events} predicted "
              f"observation events, top-{e.top_k}, windows of {e.window} steps", ""]
-    lines.append(f"  {'predictor':<20} {'accuracy':>10} {'abstained':>10} {'lift':>12}")
-    lines += [f"  {p:<20} {a:>10} {b:>10} {c:>12}" for p, a, b, c in _summary_rows(t)]
-    lines.append(f"  {'library top-' + str(e.top_k):<20} {_pct(t.rate('top_k')):>10}")
-    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'frequency':>10} {'markov':>10}"]
+    lines.append(f"  {'predictor':<22} {'accuracy':>10} {'95 % interval':>17} {'abstained':>10} "
+                 f"{'lift':>11} {'95 % interval':>17}")
+    lines += [f"  {p:<22} {a:>10} {i:>17} {b:>10} {c:>11} {d:>17}" for p, a, i, b, c, d in _summary_rows(e)]
+    lines.append(f"  {'library top-' + str(e.top_k):<22} {_pct(t.rate('top_k')):>10} "
+                 f"{_span(h and h['top_k_interval']):>17}")
+    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'95 % interval':>17} "
+                  f"{'frequency':>10} {'markov':>10} {'persistence':>11}"]
+    by_channel = {c["channel"]: c for c in (h["channels"] if h else [])}
     for c in e.channels.to_list():
+        extra = by_channel.get(c["channel"], {})
         lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
-                     f"{_pct(c['frequency_accuracy']):>10} {_pct(c['markov_accuracy']):>10}")
+                     f"{_span(extra.get('accuracy_interval')):>17} {_pct(c['frequency_accuracy']):>10} "
+                     f"{_pct(c['markov_accuracy']):>10} {_pct(extra.get('persistence_accuracy')):>11}")
     lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10} "
                   f"{'frequency':>10} {'markov':>10}"]
     for ep in e.episodes:
@@ -53,6 +79,8 @@ def format_table(evaluation: Evaluation) -> str:
         lines += ["", "  most frequent confusions (predicted -> actual):"]
         lines += [f"  {n:>9}  {p} -> {a}" for p, a, n in e.confusions]
     lines += [""] + [f"  note: {n}" for n in e.notes]
+    lines.append("  intervals: Wilson 95 % for accuracies, Newcombe's paired 95 % for lifts "
+                 "(steps of a log are not independent: read them as the least uncertainty)")
     lines.append(f"  {e.predictions:,} predictions, {e.predictions_per_s:,.0f} predictions/s "
                  f"(evaluation core)")
     return "\n".join(lines)
@@ -86,9 +114,10 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
              f"<p>{len(e.episodes)} log(s), {t.events} predicted observation events, "
              f"top-{e.top_k}, windows of {e.window} steps.</p>",
              "<h2>Accuracy</h2>",
-             _table(["predictor", "accuracy", "abstained", "lift of the library"],
-                    [list(r) for r in _summary_rows(t)]
-                    + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", ""]]),
+             _table(["predictor", "accuracy", "95 % interval", "abstained", "lift of the library",
+                     "95 % interval"],
+                    [list(r) for r in _summary_rows(e)]
+                    + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", "", "", ""]]),
              f'<img alt="learning curves" src="data:image/png;base64,{image}">',
              "<h2>Channels</h2>",
              _table(["channel", "events", "library", "frequency", "markov"],

@@ -339,15 +339,16 @@ def _sequence_fields(obj: Any, name: str, seq: Any, path: str, depth: int,
             for i in range(min(len(seq), max_items)):
                 yield f"{path}[{i}]", _plain(seq[i])
     elif not isinstance(seq[0], (bytes, bytearray)):
-        yield from iter_scalar_fields(seq[0], f"{path}[0]", depth + 1, max_items)
+        for i in range(min(len(seq), max_items)):
+            yield from iter_scalar_fields(seq[i], f"{path}[{i}]", depth + 1, max_items)
 
 
 def iter_scalar_fields(obj: Any, prefix: str = "", depth: int = 0,
                        max_items: int = 4) -> Iterator[tuple[str, Any]]:
     """``(field path, value)`` for the scalar leaves of a decoded message.
 
-    Arrays of scalars show their first ``max_items`` elements, by name when a sibling
-    ``name`` array makes them parallel; arrays of messages show their first element.
+    Arrays show their first ``max_items`` elements: scalars by name when a sibling
+    ``name`` array makes them parallel, else by index; messages by index.
     """
     if depth > 8:
         return

@@ -53,6 +53,8 @@ _OP_SCHEMA = 0x03
 _OP_CHANNEL = 0x04
 _OP_MESSAGE = 0x05
 _OP_CHUNK = 0x06
+_OP_ATTACHMENT = 0x09
+_OP_METADATA = 0x0C
 _OP_DATA_END = 0x0F
 _OP_INVALID = 0x00  # reserved: zero bytes where a record should be
 
@@ -196,6 +198,7 @@ class _Block:
     end: int
     min_time: int
     is_chunk: bool
+    max_time: int = 0
 
 
 @dataclass
@@ -208,6 +211,18 @@ class _Layout:
     schemas: dict[int, SchemaInfo] = field(default_factory=dict)
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
     raw_channels: dict[int, tuple] = field(default_factory=dict)
+    extras: list[tuple[int, int, int]] = field(default_factory=list)  # metadata, attachments
+
+
+@dataclass(frozen=True)
+class AttachmentInfo:
+    """An attachment record: times, name, media type and its bytes."""
+
+    log_time_ns: int
+    create_time_ns: int
+    name: str
+    media_type: str
+    data: bytes
 
 
 class McapLog:
@@ -259,6 +274,36 @@ class McapLog:
     def channels(self) -> dict[int, ChannelInfo]:
         """Channels known so far, by id."""
         return self._layout.channels
+
+    def time_range(self) -> tuple[int, int] | None:
+        """``(first, last)`` log time (ns) of the readable blocks, ``None`` without messages."""
+        blocks = self._layout.blocks
+        if not blocks:
+            return None
+        return min(b.min_time for b in blocks), max(max(b.max_time, b.min_time) for b in blocks)
+
+    def iter_metadata(self) -> Iterator[tuple[str, dict[str, str]]]:
+        """``(name, {key: value})`` of each metadata record, in file order."""
+        for op, pos, end in self._layout.extras:
+            if op == _OP_METADATA:
+                buf = self._read_record(pos, end)
+                name, at = _read_str(buf, 0)
+                yield name, _read_map(buf, at)
+
+    def iter_attachments(self) -> Iterator[AttachmentInfo]:
+        """Each attachment record, in file order (one in memory at a time)."""
+        for op, pos, end in self._layout.extras:
+            if op == _OP_ATTACHMENT:
+                buf = self._read_record(pos, end)
+                log_time, create_time = struct.unpack_from("<QQ", buf, 0)
+                name, at = _read_str(buf, 16)
+                media_type, at = _read_str(buf, at)
+                (n,) = _U64.unpack_from(buf, at)
+                yield AttachmentInfo(log_time, create_time, name, media_type, bytes(buf[at + 8:at + 8 + n]))
+
+    def _read_record(self, pos: int, end: int) -> bytes:
+        self._file.seek(pos + 9)
+        return self._file.read(end - pos - 9)
 
     def iter_messages(self, topics: Iterable[str] | None = None,
                       on_progress: Callable[[int, int], None] | None = None) -> Iterator[RawMessage]:
@@ -334,19 +379,20 @@ class _BlockBuilder:
     def __init__(self, blocks: list[_Block]) -> None:
         self.blocks = blocks
         self.start = self.end = self.count = 0
-        self.min_time = 0
+        self.min_time = self.max_time = 0
 
     def add(self, offset: int, end: int, log_time: int) -> None:
         if self.count and (self.count >= _BLOCK_MESSAGES or end - self.start > _BLOCK_BYTES):
             self.close()
         if not self.count:
-            self.start, self.min_time = offset, log_time
+            self.start, self.min_time, self.max_time = offset, log_time, log_time
         self.min_time = min(self.min_time, log_time)
+        self.max_time = max(self.max_time, log_time)
         self.end, self.count = end, self.count + 1
 
     def close(self) -> None:
         if self.count:
-            self.blocks.append(_Block(self.start, self.end, self.min_time, False))
+            self.blocks.append(_Block(self.start, self.end, self.min_time, False, self.max_time))
         self.count = 0
 
 
@@ -423,8 +469,10 @@ def _scan_other(f: BinaryIO, op: int, length: int, pos: int, end: int, layout: _
                 report: ReadReport) -> None:
     """Handle a non-message record of the scan (only its start has been read)."""
     if op == _OP_CHUNK:
-        start_time = _U64.unpack(f.read(8))[0] if length >= 8 else 0
-        layout.blocks.append(_Block(pos, end, start_time, True))
+        start_time, end_time = struct.unpack("<QQ", f.read(16)) if length >= 16 else (0, 0)
+        layout.blocks.append(_Block(pos, end, start_time, True, end_time))
+    elif op in (_OP_METADATA, _OP_ATTACHMENT):
+        layout.extras.append((op, pos, end))
     elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_HEADER) and length < _SMALL_RECORD:
         try:
             _register_record(op, f.read(length), 0, length, layout)

@@ -52,7 +52,7 @@ from slearn.errors import InputError, LibraryFormatError, SpecError
 from slearn.files import atomic_write, check_output, regular_file
 from slearn.library import PatternLibrary
 from slearn.library_header import FORMAT_NAME, FORMAT_VERSION, parse_header
-from slearn.spec import Bins, Spec
+from slearn.spec import Bins, Spec, value_labels
 from slearn.tokens import OBSERVATION, TokenTable
 from slearn.vocabulary import Vocabulary
 
@@ -507,6 +507,8 @@ def describe(path: str | os.PathLike) -> "LibraryDescription":
     with _reading(path):
         groups = _row_groups(parquet, doc, path)
         columns = _read_pattern_columns(parquet, groups["pattern"], path)
+    if doc["spec"] is not None:  # bins read as value ranges
+        vocabulary.value_labels.update(value_labels(Spec.from_dict(doc["spec"], str(path))))
     size, n = path.stat().st_size, len(columns.count)
     steps = np.diff(columns.token_offsets) // 2
     return LibraryDescription({
@@ -542,7 +544,7 @@ class LibraryDescription(dict):
                  f"  patterns by steps: {histogram or '-'} (mean {self['mean_steps']:.2f})",
                  f"  vocabulary: {self['vocabulary']['symbols']} symbols"]
         for channel in self["vocabulary"]["channels"]:
-            values = ", ".join(map(str, channel["values"][:12]))
+            values = ", ".join(map(str, channel.get("labels", channel["values"])[:12]))
             more = " ..." if channel["n_values"] > 12 else ""
             lines.append(f"    {channel['channel']:<32} {channel['role']:<11} {channel['n_values']:>6}  "
                          f"{values}{more}")
@@ -564,9 +566,12 @@ def _describe_vocabulary(vocabulary: Vocabulary) -> dict:
     values: dict[str, list] = {c: [] for c in vocabulary.channels()}
     for _, channel, value in vocabulary.items():
         values[channel].append(value)
+    shown = {c: [vocabulary.value_labels[c](x) for x in v[:MAX_LISTED_VALUES]] if c in vocabulary.value_labels
+             else None for c, v in values.items()}
     return {"symbols": len(vocabulary), "channels": [
         {"channel": c, "role": vocabulary.roles[c], "n_values": len(v),
-         "values": [_jsonable(x) for x in v[:MAX_LISTED_VALUES]]} for c, v in values.items()]}
+         "values": [_jsonable(x) for x in v[:MAX_LISTED_VALUES]],
+         **({"labels": shown[c]} if shown[c] is not None else {})} for c, v in values.items()]}
 
 
 def _jsonable(value: Any) -> Any:
@@ -607,11 +612,13 @@ def _pattern_tokens(columns: _PatternColumns, i: int) -> list[list[int]]:
 
 
 def _short_labels(vocabulary: Vocabulary) -> list[str]:
-    """``value`` where the value's text belongs to one channel only, else ``channel=value``."""
+    """``value`` where the value's text belongs to one channel only, else ``channel=value``
+    (bins as value ranges)."""
+    texts = [(c, vocabulary.value_text(s)) for s, c, _ in vocabulary.items()]
     channels: dict[str, set[str]] = {}
-    for _, channel, value in vocabulary.items():
-        channels.setdefault(str(value), set()).add(channel)
-    return [str(v) if len(channels[str(v)]) == 1 else f"{c}={v}" for _, c, v in vocabulary.items()]
+    for channel, text in texts:
+        channels.setdefault(text, set()).add(channel)
+    return [t if len(channels[t]) == 1 else f"{c}={t}" for c, t in texts]
 
 
 # --- merging -----------------------------------------------------------------------------

@@ -139,7 +139,8 @@ def test_undecodable_payloads_are_counted_per_channel_and_skipped(tmp_path):
     path.write_bytes(mb.log(*(mb.message(i, p) for i, p in enumerate(payloads))))
     result = run("learn", "-q", path, "--channel", "/a:v:observation", "-o", tmp_path / "lib.parquet")
     assert result.exit_code == EXIT_TRUNCATED, result.output
-    warning = result.stderr.strip()
+    no_action, warning = result.stderr.strip().splitlines()  # the spec has observations only
+    assert "the spec has no action channel" in no_action
     offset = len(mb.MAGIC + mb.header() + mb.schema() + mb.channel()) + 4 * len(mb.message(0, b'{"v": 0}'))
     assert warning == (f"slearn: warning: {path}: skipped 2 message(s) that do not decode (2 on /a; "
                        f"first at byte {offset}: channel '/a': a message does not decode: Expecting ',' "
@@ -245,8 +246,11 @@ def test_values_too_large_for_the_bins_are_skipped(tmp_path):
 
 def test_a_channel_with_more_values_than_its_limit_is_refused(tmp_path):
     path = write_log(tmp_path / "x.mcap", [("/a", i, {"v": i}) for i in range(20)])
-    line = one_line(run("learn", "-q", path, "-o", tmp_path / "lib.parquet",
-                        "--channel", "/a:v:observation:max_symbols=5"))
+    result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet",
+                 "--channel", "/a:v:observation:max_symbols=5")
+    assert result.exit_code == 1, result.output
+    no_action, line = result.stderr.strip().splitlines()  # the spec has observations only
+    assert "the spec has no action channel" in no_action
     assert "channel '/a' has more than 5 distinct values: use coarser bins, or raise the entry's max_symbols" in line
     assert run("learn", "-q", path, "-o", tmp_path / "lib.parquet",
                "--channel", "/a:v:observation:max_symbols=20").exit_code == 0

@@ -66,8 +66,8 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
 @command.command("stream")
 @click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="The MCAP file (numbered STEM-00000.mcap... for several episodes), "
-                   "or an existing folder.")
+              help="The MCAP file (all episodes in one, marked on /slearn/episode), or an "
+                   "existing folder.")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True,
               help="Input format.")
 @click.option("--per-file", is_flag=True, help="Make the whole file one episode.")
@@ -84,7 +84,8 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
 def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[str, ...],
            channel: str, tick_ms: float, spec_out: Path | None, force: bool,
            as_json: bool) -> None:
-    """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into MCAP episodes."""
+    """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into one MCAP file
+    holding each sequence as an episode."""
     if spec_out is not None:
         check_output(spec_out, force, inputs=[source, output])
     summary = convert_stream(source, output, fmt=fmt, per_file=per_file,
@@ -97,8 +98,7 @@ def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[st
 
 
 def _stream_line(summary: StreamSummary) -> str:
-    where = summary.paths[0] if len(summary.paths) == 1 else \
-        f"{len(summary.paths)} episodes ({summary.paths[0]} ... {summary.paths[-1]})"
+    where = f"{summary.paths[0]} ({summary.episodes:,} episode{'s' if summary.episodes > 1 else ''})"
     channels = ", ".join(f"{name} ({role})" for name, role in summary.channels.items())
     return (f"wrote {where}: {summary.format}, {summary.events} events on {channels}, "
             f"{summary.size_bytes / 1024:.0f} KiB")

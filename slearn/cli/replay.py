@@ -8,17 +8,23 @@ import os
 
 import click
 
+from slearn.bags import is_log_path
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
+from slearn.cli.common import make_slice, slice_options, topic_list
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
 from slearn.files import check_output
 from slearn.library import DEFAULT_MAX_LENGTH
 from slearn.predictor import SCORINGS
+from slearn.slicing import HELDOUT
 
 _MCAP_MAGIC = b"\x89MCAP"
 
 
-def _is_mcap(path: str) -> bool:
+def _is_log(path: str) -> bool:
+    """An MCAP file, a rosbag2 folder, a .db3 or a .bag (not a library)."""
+    if is_log_path(path):
+        return True
     if not os.path.isfile(path):  # never open a FIFO: it would block
         return path.endswith(".mcap")
     try:
@@ -58,18 +64,23 @@ def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--fail-under", type=FiniteFloat(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
+@slice_options(split=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
             window: int | None, top_k: int, scoring: str | None, max_length: int,
             baseline_train: tuple[str, ...], as_json: bool, plot: str | None, report: str | None,
-            write_mcap: str | None, force: bool, fail_under: float | None, quiet: bool) -> None:
-    """Evaluate library LIB on held-out MCAP LOGS: slearn replay LIB LOGS...
+            write_mcap: str | None, force: bool, fail_under: float | None, start: str | None,
+            end: str | None, topics: str | None, split: float | None, quiet: bool) -> None:
+    """Evaluate library LIB on held-out LOGS: slearn replay LIB LOGS...
 
-    Frozen by default: the library predicts every observation from the history and the
-    actions issued, without learning. With --spec and no LIB, replay starts from an empty
-    library and learns online. Exits 3 when a log was truncated (what was salvaged is
-    scored), 4 when the accuracy is below --fail-under.
+    LOGS are MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files. Frozen by default: the
+    library predicts every observation from the history and the actions issued, without
+    learning. With --spec and no LIB, replay starts from an empty library and learns
+    online. With --split, each log's held-out part (after the share learn --split read) is
+    replayed. Every accuracy comes with a 95 % interval, next to the frequency, Markov and
+    persistence baselines. Exits 3 when a log was truncated (what was salvaged is scored),
+    4 when the accuracy is below --fail-under.
     """
     from slearn.replay.evaluate import replay_logs
 
@@ -77,13 +88,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     inputs = [*paths, *baseline_train, *([spec] if spec else [])]
     _check_outputs([plot, report], force, inputs)
     if write_mcap:
-        from slearn.replay.annotate import annotated_paths
+        from slearn.replay.annotate import annotated_paths, layout_path
 
-        _check_outputs(annotated_paths(logs, write_mcap), force, inputs)
-    evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
-                             window=window, max_length=max_length, scoring=scoring,
+        targets = annotated_paths(logs, write_mcap)
+        _check_outputs([str(p) for t in targets for p in (t, layout_path(t))], force, inputs)
+    evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics), online=online,
+                             top_k=top_k, window=window, max_length=max_length, scoring=scoring,
                              baseline_logs=baseline_train or None,
-                             keep_outcomes=write_mcap is not None, progress=not quiet)
+                             keep_outcomes=write_mcap is not None, progress=not quiet,
+                             time_slice=make_slice(start, end, split, HELDOUT))
     outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
     _render(evaluation, outputs, as_json)
     for warning in evaluation.warnings:
@@ -98,11 +111,32 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
         ctx.exit(EXIT_TRUNCATED)
 
 
+def _spec(spec: str | None, library: str | None, topics: str | None):
+    """The spec to pass on: the file, or with --topics the file's entries of those topics.
+
+    A saved library is replayed on the topics it learned; --topics must name them all.
+    """
+    wanted = topic_list(topics)
+    if wanted is None:
+        return spec
+    if library is not None:
+        from slearn.storage import read_info
+
+        learned = sorted({c["topic"] for c in (read_info(library).get("spec") or {}).get("channel", [])})
+        if learned and sorted(set(wanted)) != learned:
+            raise InputError(f"{library}: learned on topics {', '.join(learned)}; replay reads the "
+                             f"same topics (drop --topics, or learn a library on the ones you want)")
+        return spec
+    from slearn.spec import load_spec
+
+    return load_spec(spec).only_topics(wanted)
+
+
 def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[str]]:
-    """``(library or None, logs)``: with --spec, a first path that is MCAP means no library."""
-    if _is_mcap(paths[0]):
+    """``(library or None, logs)``: with --spec, a first path that is a log means no library."""
+    if _is_log(paths[0]):
         if spec is None:
-            raise InputError(f"{paths[0]} is an MCAP log, not a library: give the library first "
+            raise InputError(f"{paths[0]} is a log, not a library: give the library first "
                              "(slearn replay LIB LOGS...), or --spec FILE to start from an empty one")
         return None, list(paths)
     if len(paths) < 2:
