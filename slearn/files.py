@@ -155,15 +155,29 @@ def check_output(path: str | os.PathLike, overwrite: bool,
 
 
 def refuse_inputs(path: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
-    """Refuse an output ``path`` that resolves to one of ``inputs`` (links followed).
+    """Refuse an output ``path`` that resolves to one of ``inputs`` (links followed), or to
+    a file inside an input folder.
 
     Raises:
         InputError: the output is an input; ``--force`` does not lift this.
     """
     for source in inputs:
-        if same_file(path, source):
-            raise InputError(f"{path} is also an input ({source}): write the output to "
-                             f"another file (inputs are never overwritten, even with --force)")
+        where = "also an input" if same_file(path, source) else \
+            "in an input folder" if _in_folder(path, source) else None
+        if where:
+            raise InputError(f"{path} is {where} ({source}): write the output to another file "
+                             f"(inputs are never overwritten, even with --force)")
+
+
+def _in_folder(path: str | os.PathLike, source: str | os.PathLike) -> bool:
+    """Whether ``path`` is an existing file inside ``source``, an input folder (a rosbag2
+    bag, also when given by its ``metadata.yaml``): its files are inputs too."""
+    folder = Path(source)
+    if folder.name == "metadata.yaml":
+        folder = folder.parent
+    if not folder.is_dir() or not os.path.lexists(path):
+        return False
+    return Path(os.path.realpath(path)).is_relative_to(os.path.realpath(folder))
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
