@@ -41,7 +41,7 @@ import warnings
 import zlib
 from dataclasses import dataclass, field
 from operator import itemgetter
-from typing import BinaryIO, Callable, Iterable, Iterator, NamedTuple
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
 
 from slearn.errors import InputError, TruncatedLogWarning
 
@@ -107,16 +107,22 @@ class ChannelInfo:
         return self.schema.encoding if self.schema else ""
 
 
+UNKNOWN_OFFSET = -1
+"""The ``offset`` of a message (or ``broken_at`` of a break) whose byte position a reader
+cannot tell (bags read through ``rosbags``, rosbag2 folders of several files)."""
+
+
 class RawMessage(NamedTuple):
     """One undecoded message; ``data`` is the payload as written, ``offset`` the byte
-    offset of its record in the file (of the chunk holding it, for chunked messages)."""
+    offset of its record in the file (of the chunk holding it, for chunked messages), or
+    :data:`UNKNOWN_OFFSET`."""
 
     channel: ChannelInfo
     log_time_ns: int
     publish_time_ns: int
     sequence: int
     data: bytes
-    offset: int = -1
+    offset: int = UNKNOWN_OFFSET
 
     @property
     def topic(self) -> str:
@@ -137,13 +143,15 @@ class ReadReport:
         path: the file.
         n_messages: messages yielded (after topic filtering).
         size_bytes: the file size.
-        broken_at: byte offset of the first record that could not be read, else ``None``.
+        broken_at: byte offset of the first record that could not be read
+            (:data:`UNKNOWN_OFFSET` when the reader cannot tell), else ``None``.
         reason: why it broke.
         n_skipped_chunks: chunks skipped as unreadable (corrupt) before the end.
         filtered: the pass read some topics only (``n_messages`` counts those).
         undecodable: messages whose payload did not decode, skipped, per topic (filled in
             by the reader that decodes, e.g. :mod:`slearn.serialize`).
-        first_undecodable: the byte offset and the error of the first of them.
+        first_undecodable: where the first of them is (byte offset, else its number
+            among the messages read) and its error.
     """
 
     path: str
@@ -170,7 +178,8 @@ class ReadReport:
         """Count a message skipped because its payload does not decode."""
         self.undecodable[topic] = self.undecodable.get(topic, 0) + 1
         if self.first_undecodable is None:
-            self.first_undecodable = f"first at byte {offset}: {error}"
+            where = f"byte {offset}" if offset >= 0 else f"message {self.n_messages} read"
+            self.first_undecodable = f"first at {where}: {error}"
 
     def describe(self) -> str:
         """A one-line summary naming the file, the messages read and the break."""
@@ -181,8 +190,9 @@ class ReadReport:
             skipped = (f", {self.n_skipped_chunks} unreadable chunk(s) skipped"
                        if self.n_skipped_chunks else "")
             which = " of the selected topics" if self.filtered else ""
+            where = f" at byte {self.broken_at} of {self.size_bytes}" if self.broken_at >= 0 else ""
             parts.append(f"truncated or corrupt log: salvaged {self.n_messages} messages{which}; "
-                         f"broke at byte {self.broken_at} of {self.size_bytes} ({self.reason}){skipped}")
+                         f"broke{where} ({self.reason}){skipped}")
         if self.undecodable:
             counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.undecodable.items()))
             parts.append(f"skipped {sum(self.undecodable.values())} message(s) that do not decode "
@@ -283,27 +293,35 @@ class McapLog:
         return min(b.min_time for b in blocks), max(max(b.max_time, b.min_time) for b in blocks)
 
     def iter_metadata(self) -> Iterator[tuple[str, dict[str, str]]]:
-        """``(name, {key: value})`` of each metadata record, in file order."""
-        for op, pos, end in self._layout.extras:
-            if op == _OP_METADATA:
-                buf = self._read_record(pos, end)
-                name, at = _read_str(buf, 0)
-                yield name, _read_map(buf, at)
+        """``(name, {key: value})`` of each metadata record, in file order.
+
+        A record that cannot be parsed, or is larger than ``max_chunk_bytes``, is skipped
+        and noted in ``report``, like a damaged chunk.
+        """
+        return self._iter_records(_OP_METADATA, _parse_metadata)
 
     def iter_attachments(self) -> Iterator[AttachmentInfo]:
-        """Each attachment record, in file order (one in memory at a time)."""
-        for op, pos, end in self._layout.extras:
-            if op == _OP_ATTACHMENT:
-                buf = self._read_record(pos, end)
-                log_time, create_time = struct.unpack_from("<QQ", buf, 0)
-                name, at = _read_str(buf, 16)
-                media_type, at = _read_str(buf, at)
-                (n,) = _U64.unpack_from(buf, at)
-                yield AttachmentInfo(log_time, create_time, name, media_type, bytes(buf[at + 8:at + 8 + n]))
+        """Each attachment record, in file order (one in memory at a time); damaged or
+        oversized ones are skipped as in :meth:`iter_metadata`."""
+        return self._iter_records(_OP_ATTACHMENT, _parse_attachment)
 
-    def _read_record(self, pos: int, end: int) -> bytes:
-        self._file.seek(pos + 9)
-        return self._file.read(end - pos - 9)
+    def _iter_records(self, op: int, parse: Callable[[bytes], Any]) -> Iterator[Any]:
+        for kind, pos, end in self._layout.extras:
+            if kind != op:
+                continue
+            size = end - pos - 9
+            if size > self.max_chunk_bytes:
+                self.report.note_break(pos, f"record (opcode 0x{op:02x}) of {size:,} bytes skipped: "
+                                            f"over the {self.max_chunk_bytes / 2**20:g} MiB limit; "
+                                            f"raise {MAX_CHUNK_ENV} to read it")
+                continue
+            self._file.seek(pos + 9)
+            try:
+                record = parse(self._file.read(size))
+            except struct.error as err:
+                self.report.note_break(pos, f"unreadable record (opcode 0x{op:02x}): {err}")
+                continue
+            yield record
 
     def iter_messages(self, topics: Iterable[str] | None = None,
                       on_progress: Callable[[int, int], None] | None = None) -> Iterator[RawMessage]:
@@ -521,6 +539,19 @@ def _read_map(buf: bytes, pos: int) -> dict[str, str]:
     return out
 
 
+def _parse_metadata(buf: bytes) -> tuple[str, dict[str, str]]:
+    name, at = _read_str(buf, 0)
+    return name, _read_map(buf, at)
+
+
+def _parse_attachment(buf: bytes) -> AttachmentInfo:
+    log_time, create_time = struct.unpack_from("<QQ", buf, 0)
+    name, at = _read_str(buf, 16)
+    media_type, at = _read_str(buf, at)
+    (n,) = _U64.unpack_from(buf, at)
+    return AttachmentInfo(log_time, create_time, name, media_type, bytes(buf[at + 8:at + 8 + n]))
+
+
 def _resolve_channels(layout: _Layout) -> None:
     """Turn raw channel records into :class:`ChannelInfo` once their schema is known."""
     for cid, (sid, topic, encoding, metadata) in list(layout.raw_channels.items()):
@@ -535,8 +566,10 @@ class _TooLarge(ValueError):
     """A block would not fit in the memory limit (see :func:`max_chunk_bytes_setting`)."""
 
 
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
+def decompress_exactly(compression: str, data: bytes, size: int) -> bytes:
     """Decompress a chunk's records into exactly ``size`` bytes, never more.
+
+    ``compression`` is MCAP's (``""``, ``zstd``, ``lz4``), or ``bz2`` (ROS 1 bag chunks).
 
     Raises:
         ValueError: the data holds more or fewer bytes than declared, or does not decompress.
@@ -547,6 +580,10 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
         out = _zstd(data, size)
     elif compression == "lz4":
         out = _lz4(data, size)
+    elif compression == "bz2":
+        import bz2
+
+        out = _at_most(bz2.BZ2Decompressor(), data, size, "bz2")
     else:
         raise ValueError(f"unsupported chunk compression {compression!r}")
     if len(out) != size:
@@ -571,10 +608,14 @@ def _lz4(data: bytes, size: int) -> bytes:
     declared = lz4.frame.get_frame_info(data)["content_size"]
     if declared not in (0, size):  # 0: the frame does not say
         raise ValueError(f"lz4 frame holds {declared} bytes, the chunk declares {size}")
-    decompressor = lz4.frame.LZ4FrameDecompressor()
+    return _at_most(lz4.frame.LZ4FrameDecompressor(), data, size, "lz4")
+
+
+def _at_most(decompressor, data: bytes, size: int, what: str) -> bytes:
+    """Run a streaming ``decompressor`` on ``data`` for at most ``size`` bytes of output."""
     out = decompressor.decompress(data, max_length=size + 1)  # one byte more tells "too much"
     if len(out) == size and not decompressor.eof:
-        raise ValueError(f"lz4 data holds more than the {size} bytes the chunk declares")
+        raise ValueError(f"{what} data holds more than the {size} bytes the chunk declares")
     return out
 
 
@@ -597,7 +638,7 @@ def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
     if uncompressed_size > room:
         raise _TooLarge(f"chunk declares {uncompressed_size:,} bytes uncompressed")
     try:
-        data = _decompress(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
+        data = decompress_exactly(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
     except ValueError:
         raise  # a size mismatch, said as it is
     except Exception as err:  # zstd/lz4 raise their own error types
@@ -626,7 +667,7 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
             raise ValueError(f"record at +{pos} runs past the end of its block")
         n_records += 1
         if n_records % _BLOCK_MESSAGES == 0:  # every record counts: floods of tiny ones stop early
-            _check_room(end, n_records, room)
+            check_room(end, n_records, room)
         if op == _OP_MESSAGE:
             cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
             channel = channels.get(cid)
@@ -638,13 +679,24 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         elif op == _OP_INVALID:  # zero bytes are never walked record by record
             raise ValueError(f"zero bytes instead of a record at +{pos}")
         pos = nxt
-    _check_room(end, len(out), room)
+    check_room(end, len(out), room)
     out.sort(key=itemgetter(0))  # stable: ties keep file order
     return out
 
 
-def _check_room(n_bytes: int, n_records: int, room: int) -> None:
-    if n_bytes + _MESSAGE_BYTES * n_records > room:
+def block_cost(n_bytes: int, n_records: int) -> int:
+    """Memory an opened block of ``n_bytes`` with ``n_records`` records is counted for."""
+    return n_bytes + _MESSAGE_BYTES * n_records
+
+
+def check_room(n_bytes: int, n_records: int, room: int) -> None:
+    """Refuse a block of ``n_bytes`` holding ``n_records`` records that would not fit in ``room``
+    bytes of memory (its bytes plus an index entry per record).
+
+    Raises:
+        ValueError: it would not fit (the block is skipped, like a damaged one).
+    """
+    if block_cost(n_bytes, n_records) > room:
         raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_records:,} records")
 
 
@@ -696,7 +748,7 @@ class _Merge:
         self.bytes_read += block.end - block.offset
         if self.on_progress is not None:
             self.on_progress(self.bytes_read, self.report.size_bytes)
-        return _Opened(messages, buf, len(buf) + _MESSAGE_BYTES * len(messages))
+        return _Opened(messages, buf, block_cost(len(buf), len(messages)))
 
     def _skip(self, block: _Block, reason: str) -> None:
         where = "chunk" if block.is_chunk else "records"

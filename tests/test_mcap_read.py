@@ -253,14 +253,14 @@ def _messages(n, start=0, data=b'{"v":1}'):
 
 
 def test_a_chunk_declaring_more_than_the_limit_is_skipped_without_decompressing(tmp_path, monkeypatch):
-    real = mcap_read._decompress
+    real = mcap_read.decompress_exactly
     sizes = []
 
     def recorded(compression, data, size):
         sizes.append(size)
         return real(compression, data, size)
 
-    monkeypatch.setattr(mcap_read, "_decompress", recorded)
+    monkeypatch.setattr(mcap_read, "decompress_exactly", recorded)
     bomb = mb.chunk(_messages(10), declared=1 << 40)
     got, report = _read_bytes(tmp_path, mb.log(bomb, mb.chunk(_messages(5, 100))))
     assert [t for t, _ in got] == [100, 101, 102, 103, 104]
@@ -343,3 +343,24 @@ def test_a_fifo_is_refused_without_opening_it(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(InputError, match="not a regular file"):
         McapLog(fifo)  # opening a FIFO would block until a writer came
+
+
+def test_metadata_and_attachments_over_the_limit_or_damaged_are_skipped_and_noted(tmp_path):
+    path = tmp_path / "extras.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        writer.add_metadata("small", {"k": "v"})
+        writer.add_attachment(1, 2, "big.bin", "application/octet-stream", bytes(2 << 20))
+        writer.add_attachment(3, 4, "small.txt", "text/plain", b"hello")
+        writer.add_metadata("damaged", {"a": "b"})
+        writer.finish()
+    data = bytearray(path.read_bytes())
+    at = data.index(b"damaged") + len(b"damaged")
+    data[at:at + 4] = (1 << 31).to_bytes(4, "little")  # its map says 2 GiB of entries
+    path.write_bytes(bytes(data))
+    with McapLog(path, max_chunk_bytes=1 << 20) as log:
+        assert [(a.name, a.data) for a in log.iter_attachments()] == [("small.txt", b"hello")]
+        described = log.report.describe()  # the first break is the one described
+        assert list(log.iter_metadata()) == [("small", {"k": "v"})]
+    assert "(opcode 0x09) of 2,097,2" in described and "raise SLEARN_MAX_CHUNK_MB" in described
