@@ -19,6 +19,13 @@ are those of MCAP logs.
 A file that breaks while being read (``rosbags`` raises) keeps what was read before: the
 report notes where it broke, and a :class:`~slearn.errors.TruncatedLogWarning` follows as
 for MCAP files.
+
+The limits of MCAP files hold for bags too: a FIFO or device is refused before it is
+opened, and ROS 1 chunks are decompressed into exactly the size they declare, at most
+``SLEARN_MAX_CHUNK_MB`` (:func:`~slearn.ros1_salvage.chunk_decompressor`, also for the
+chunks ``rosbags`` reads). Messages read through ``rosbags``, and those of a folder of
+several files, carry no byte offset (:data:`~slearn.mcap_read.UNKNOWN_OFFSET`): warnings
+name them by their number instead.
 """
 
 from __future__ import annotations
@@ -29,10 +36,13 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from slearn.errors import InputError
-from slearn.mcap_read import AttachmentInfo, ChannelInfo, McapLog, RawMessage, ReadReport, SchemaInfo
+from slearn.files import regular_file
+from slearn.mcap_read import (UNKNOWN_OFFSET, AttachmentInfo, ChannelInfo, McapLog, RawMessage,
+                              ReadReport, SchemaInfo, max_chunk_bytes_setting)
 
 METADATA_FILE = "metadata.yaml"
 BAG_SUFFIXES = (".db3", ".bag")
+_MAX_METADATA_BYTES = 64 << 20  # a rosbag2 metadata.yaml larger than this is not one
 
 
 def is_log_path(path: str | os.PathLike) -> bool:
@@ -49,16 +59,16 @@ def open_log(path: str | os.PathLike):
         InputError: the path does not exist or cannot be read as a log.
     """
     path = Path(path)
-    if path.name == METADATA_FILE and path.is_file():
+    if path.name == METADATA_FILE:
         path = path.parent
     if path.is_dir():
-        if not (path / METADATA_FILE).is_file():
+        if not os.path.lexists(path / METADATA_FILE):
             raise InputError(f"{path}: a folder, but not a rosbag2 bag (no {METADATA_FILE} in it)")
         return _open_rosbag2_folder(path)
     if path.suffix.lower() == ".db3":
-        return RosbagsLog(path, "ros2")
+        return RosbagsLog(regular_file(path, "ROS 2 .db3 bag"), "ros2")
     if path.suffix.lower() == ".bag":
-        return _open_ros1(path)
+        return _open_ros1(regular_file(path, "ROS 1 .bag file"))
     return McapLog(path)
 
 
@@ -91,23 +101,25 @@ def _bag_metadata(folder: Path) -> dict:
     from ruamel.yaml import YAML
     from ruamel.yaml.error import YAMLError
 
-    where = folder / METADATA_FILE
+    where = regular_file(folder / METADATA_FILE, "rosbag2 metadata file")  # never a FIFO
     try:
+        if where.stat().st_size > _MAX_METADATA_BYTES:
+            raise ValueError(f"over {_MAX_METADATA_BYTES >> 20} MiB")
         text = where.read_text(encoding="utf-8")
         info = YAML(typ="safe").load(text)["rosbag2_bagfile_information"]
-        files = [Path(p).name for p in info["relative_file_paths"]]
-    except (OSError, UnicodeDecodeError, YAMLError, KeyError, TypeError) as err:
+        return {"storage": str(info.get("storage_identifier", "")), "text": text,
+                "files": [Path(p).name for p in info["relative_file_paths"]],
+                "compression": str(info.get("compression_mode") or "").lower()}
+    except (OSError, UnicodeDecodeError, YAMLError, KeyError, TypeError, ValueError,
+            AttributeError, RecursionError) as err:
         raise InputError(f"{where}: not a readable rosbag2 metadata file ({type(err).__name__}: "
-                         f"{err})") from None
-    return {"storage": info.get("storage_identifier", ""), "files": files, "text": text,
-            "compression": (info.get("compression_mode") or "").lower()}
+                         f"{str(err)[:200]})") from None
 
 
 def _open_rosbag2_folder(folder: Path):
     meta = _bag_metadata(folder)
-    missing = [name for name in meta["files"] if not (folder / name).is_file()]
-    if missing:
-        raise InputError(f"{folder}: the bag's file {missing[0]} is missing (listed in {METADATA_FILE})")
+    for name in meta["files"]:
+        regular_file(folder / name, f"storage file of the bag (listed in {METADATA_FILE})")
     if meta["storage"] == "mcap" and meta["compression"] in ("", "none"):
         return Rosbag2McapFolder(folder, meta)
     return RosbagsLog(folder, "ros2", meta["text"])
@@ -195,17 +207,18 @@ class Rosbag2McapFolder(_LogBase):
         streams = [((m.log_time_ns, i, m) for m in log.iter_messages(topics, progress(i)))
                    for i, log in enumerate(self._logs)]
         for _, i, message in heapq.merge(*streams, key=lambda item: item[:2]):
-            self.report.n_messages += 1
-            yield message._replace(channel=self._unified(i, message.channel))
+            self.report.n_messages += 1  # offsets are the files': named by number instead
+            yield message._replace(channel=self._unified(i, message.channel), offset=UNKNOWN_OFFSET)
         self._collect_reports()
 
     def _collect_reports(self) -> None:
         self.report.filtered = any(log.report.filtered for log in self._logs)
         for log in self._logs:
             self.report.n_skipped_chunks += log.report.n_skipped_chunks
-            if log.report.truncated:
-                self.report.note_break(log.report.broken_at,
-                                       f"in {os.path.basename(log.path)}: {log.report.reason}")
+            if log.report.broken_at is not None:
+                self.report.note_break(UNKNOWN_OFFSET, f"in {os.path.basename(log.path)} at byte "
+                                       f"{log.report.broken_at} of {log.report.size_bytes}: "
+                                       f"{log.report.reason}")
 
     def iter_metadata(self) -> Iterator[tuple[str, dict[str, str]]]:
         """The bag's ``metadata.yaml`` (as record ``rosbag2.metadata_yaml``), then every file's records."""
@@ -245,6 +258,8 @@ class RosbagsLog(_LogBase):
         except Exception as err:  # rosbags, sqlite and the OS raise many types
             kind = "a ROS 1 bag" if self.profile == "ros1" else "a ROS 2 bag"
             raise InputError(f"{path}: cannot be read as {kind}: {type(err).__name__}: {err}") from err
+        if self.profile == "ros1":
+            _bound_chunks(reader, path)
         return reader
 
     def close(self) -> None:
@@ -279,7 +294,7 @@ class RosbagsLog(_LogBase):
             except StopIteration:
                 return
             except Exception as err:  # a damaged bag: keep what was read, say where it broke
-                self.report.note_break(self.report.n_messages, f"message {self.report.n_messages + 1} "
+                self.report.note_break(UNKNOWN_OFFSET, f"message {self.report.n_messages + 1} "
                                        f"cannot be read: {type(err).__name__}: {err}")
                 return
             self.report.n_messages += 1
@@ -296,6 +311,26 @@ class RosbagsLog(_LogBase):
     def iter_attachments(self) -> Iterator[AttachmentInfo]:
         """Bags have no attachments."""
         return iter(())
+
+
+def _bound_chunks(reader, path: Path) -> None:
+    """``rosbags`` decompresses a ROS 1 chunk whole, however large: give every chunk in its
+    table the bounded decompression of :mod:`slearn.ros1_salvage` instead.
+
+    Raises:
+        InputError: this ``rosbags`` keeps no chunk table (the bag is then read linearly,
+            by :class:`~slearn.ros1_salvage.Ros1Salvage`, which is bounded).
+    """
+    from slearn.ros1_salvage import chunk_decompressor
+
+    chunks = getattr(reader, "chunks", None)  # {chunk record offset: Chunk(..., decompressor)}
+    if not isinstance(chunks, dict):
+        reader.close()
+        raise InputError(f"{path}: this rosbags version cannot be read with bounded memory")
+    limit = max_chunk_bytes_setting()
+    with open(path, "rb") as f:
+        for offset, chunk in chunks.items():
+            chunks[offset] = chunk._replace(decompressor=chunk_decompressor(f, offset, limit))
 
 
 def _channel_of(connection, profile: str) -> ChannelInfo:
