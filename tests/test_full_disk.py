@@ -14,6 +14,7 @@ from slearn.cli import main
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 
+from test_datasets import PR2_LOG
 from test_files import FullDisk
 
 OLD = b"the previous output, which must survive\n"
@@ -88,6 +89,13 @@ def test_replay_outputs(pointer, tmp_path, monkeypatch, option, name):
     assert_refused(run("replay", pointer[1], pointer[0], option, out, "--force", "-q"), tmp_path, out)
 
 
+def test_replay_foxglove_layout(pointer, tmp_path, monkeypatch):
+    full_disk(monkeypatch, ".layout.json")
+    layout = old_file(tmp_path, "a.layout.json")
+    result = run("replay", pointer[1], pointer[0], "--write-mcap", tmp_path / "a.mcap", "--force", "-q")
+    assert_refused(result, tmp_path, layout)
+
+
 def test_record_pointer(tmp_path, monkeypatch):
     full_disk(monkeypatch, ".mcap")
     out = old_file(tmp_path, "p.mcap")
@@ -114,15 +122,26 @@ def test_control_record(tmp_path, monkeypatch):
                        "--no-qlearning", "--record", out, "--force"), tmp_path, out)
 
 
-def test_datasets_build_then_a_rerun_finishes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("suffix", ["README.md", "SHA256SUMS"])
+def test_datasets_build_then_a_rerun_finishes(tmp_path, monkeypatch, suffix):
     out = tmp_path / "pr2"
-    full_disk(monkeypatch, "README.md")
+    full_disk(monkeypatch, suffix)
     assert_refused(run("datasets", "build", "pr2-sample", "-o", out), tmp_path)
     assert (out / files.INCOMPLETE_MARKER).exists()
     monkeypatch.undo()
     result = run("datasets", "build", "pr2-sample", "-o", out)  # no --force needed after a failed run
     assert result.exit_code == 0, result.output
     assert (out / "README.md").exists() and not (out / files.INCOMPLETE_MARKER).exists()
+    assert "README.md" in (out / "SHA256SUMS").read_text()
+
+
+@pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
+@pytest.mark.parametrize("suffix", ["-train.mcap", "-heldout.mcap"])
+def test_datasets_pr2_split_copies(tmp_path, monkeypatch, suffix):
+    out = tmp_path / "pr2"
+    full_disk(monkeypatch, suffix, quota=1 << 20)
+    assert_refused(run("datasets", "build", "pr2-sample", "-o", out, "--source", PR2_LOG), tmp_path)
+    assert (out / files.INCOMPLETE_MARKER).exists()
 
 
 @pytest.mark.parametrize("suffix", [".png", "summary.json", ".mcap"])
