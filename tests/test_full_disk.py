@@ -139,7 +139,7 @@ def test_datasets_build_then_a_rerun_finishes(tmp_path, monkeypatch, suffix):
 @pytest.mark.parametrize("suffix", ["-train.mcap", "-heldout.mcap"])
 def test_datasets_pr2_split_copies(tmp_path, monkeypatch, suffix):
     out = tmp_path / "pr2"
-    full_disk(monkeypatch, suffix, quota=1 << 20)
+    full_disk(monkeypatch, suffix)
     assert_refused(run("datasets", "build", "pr2-sample", "-o", out, "--source", PR2_LOG), tmp_path)
     assert (out / files.INCOMPLETE_MARKER).exists()
 
