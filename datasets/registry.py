@@ -2,10 +2,13 @@
 
 ``build_dataset(name, folder)`` writes::
 
-    FOLDER/README.md        the dataset card: what, how made, channels, spec, seeds, license
+    FOLDER/README.md        the dataset card: what, how made, channels, spec, seeds, the
+                            replay figures to expect, limitations, citation, license, and
+                            the sha256 of every episode file
     FOLDER/spec.toml        the spec to learn it with (slearn learn --spec)
     FOLDER/train/*.mcap     training episodes, one file each
     FOLDER/heldout/*.mcap   held-out episodes (other seeds), one file each
+    FOLDER/SHA256SUMS       the sha256 of every file (``sha256sum -c SHA256SUMS`` checks them)
 
 ``pointer-arm`` has one such ``joints-J/`` folder (card, spec, splits) per joint count
 under one top-level card. Everything is deterministic in the seeds listed here: the same
@@ -16,6 +19,7 @@ are shipped as ``NAME.toml``.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 from dataclasses import asdict, dataclass, field
@@ -25,12 +29,17 @@ from string import Template
 from typing import Callable
 
 from slearn import __version__
+from slearn.bags import open_log
+from slearn.datasets.figures import arm_figures, log_figures, pointer_figures
 from slearn.errors import InputError, SpecError
+from slearn.files import claim_folder, release_folder, write_atomic
 from slearn.recorders.arm import MAX_JOINTS, ArmConfig, arm_spec, record_arm
 from slearn.recorders.live import spec_toml
+from slearn.recorders.mcap_copy import copy_log
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 from slearn.serialize import read_episodes
+from slearn.slicing import HELDOUT, TRAIN, TimeSlice
 from slearn.spec import load_spec
 from slearn.vocabulary import Vocabulary
 
@@ -41,6 +50,22 @@ POINTER_TRIALS = 10_000
 ARM_TRIALS = 10_000
 SPEC_FILE = "spec.toml"
 CARD_FILE = "README.md"
+CHECKSUM_FILE = "SHA256SUMS"
+SOURCE_SPLIT = 0.7  # pr2-sample --source: the first 70 % of the log's time trains
+CITATION = """If you use these data or slearn, cite the paper that defines S-learning:
+
+> Brandon Rohrer and Steven Hulet. *A learning and control approach based on the human
+> neuromotor system.* Proceedings of the IEEE/RAS-EMBS International Conference on
+> Biomedical Robotics and Biomechatronics (BioRob), 2006. Sandia National Laboratories.
+
+```bibtex
+@inproceedings{rohrer2006slearning,
+  author    = {Rohrer, Brandon and Hulet, Steven},
+  title     = {A learning and control approach based on the human neuromotor system},
+  booktitle = {IEEE/RAS-EMBS International Conference on Biomedical Robotics and Biomechatronics (BioRob)},
+  year      = {2006}
+}
+```"""
 
 
 @dataclass(frozen=True)
@@ -64,6 +89,7 @@ class BuildSummary:
     specs: list[str] = field(default_factory=list)
     cards: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    checksums: str | None = None
 
     def to_dict(self) -> dict:
         """A JSON-ready dict."""
@@ -104,7 +130,8 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
 
     Args:
         name: a registered dataset name.
-        folder: the output folder; it must not exist or be empty unless ``overwrite``.
+        folder: the output folder; it must not exist or be empty unless ``overwrite``
+            (or be left by a killed build, which is then redone).
         overwrite: rebuild into a non-empty folder; the dataset's own files there
             (cards, specs, split folders) are replaced, other files are left alone.
         source: a log of your own to put in ``heldout/`` (``pr2-sample`` only).
@@ -117,21 +144,19 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
     if source is not None and name != "pr2-sample":
         raise InputError(f"--source is for pr2-sample; {name} is simulated from seeds")
     folder = Path(folder)
-    _prepare_folder(folder, overwrite)
+    if source is not None and _inside(source, folder):
+        raise InputError(f"--source {source} is inside the output folder {folder}, which the build "
+                         f"replaces: copy the log elsewhere first")
+    claim_folder(folder, overwrite=overwrite, advice="pass --force to rebuild the dataset there")
     summary = BuildSummary(name, str(folder))
     dataset.build(folder, summary, Path(source) if source is not None else None)
+    summary.checksums = str(_write_checksums(folder))
+    release_folder(folder)
     return summary
 
 
-def _prepare_folder(folder: Path, overwrite: bool) -> None:
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder} is a file: give a folder to build the dataset in")
-    if folder.is_dir() and any(folder.iterdir()) and not overwrite:
-        raise InputError(f"{folder} is not empty: pass --force to rebuild the dataset there")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create {folder}: {err.strerror or err}") from err
+def _inside(path: str | os.PathLike, folder: Path) -> bool:
+    return Path(os.path.realpath(path)).is_relative_to(os.path.realpath(folder))
 
 
 def _split_folders(root: Path) -> dict[str, Path]:
@@ -151,24 +176,44 @@ def _package_text(name: str) -> str:
 
 
 def _write_card(path: Path, template: str, summary: BuildSummary, **values: str) -> None:
-    text = Template(_package_text(template)).substitute(version=__version__, **values)
-    path.write_text(text, encoding="utf-8")
+    text = Template(_package_text(template)).substitute(version=__version__, citation=CITATION,
+                                                        **values)
+    write_atomic(path, text, overwrite=True)
     summary.cards.append(str(path))
 
 
 def _write_spec(path: Path, text: str, summary: BuildSummary) -> str:
-    path.write_text(text, encoding="utf-8")
+    write_atomic(path, text, overwrite=True)
     summary.specs.append(str(path))
     return text
 
 
+def sha256_of(path: str | os.PathLike) -> str:
+    """The sha256 of a file, in hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def _files_table(episodes: list[EpisodeFile], root: Path) -> str:
-    rows = ["| file | split | episode | seed | trials |", "|---|---|---|---|---|"]
+    rows = ["| file | split | episode | seed | trials | sha256 |", "|---|---|---|---|---|---|"]
     for e in episodes:
         rows.append(f"| `{Path(e.path).relative_to(root).as_posix()}` | {e.split} | "
                     f"{e.description} | {e.seed if e.seed is not None else '-'} | "
-                    f"{e.trials if e.trials is not None else '-'} |")
+                    f"{e.trials if e.trials is not None else '-'} | `{sha256_of(e.path)}` |")
     return "\n".join(rows)
+
+
+def _write_checksums(root: Path) -> Path:
+    """``SHA256SUMS`` over every file of the dataset (``sha256sum -c`` format)."""
+    target = root / CHECKSUM_FILE
+    files = sorted(p for p in root.rglob("*") if p.is_file() and p != target
+                   and not p.name.startswith("."))
+    lines = [f"{sha256_of(p)}  {p.relative_to(root).as_posix()}\n" for p in files]
+    write_atomic(target, "".join(lines), overwrite=True)
+    return target
 
 
 def _seed_splits() -> list[tuple[str, int]]:
@@ -187,9 +232,11 @@ def _build_pointer_paper(root: Path, summary: BuildSummary, source: Path | None)
             episodes.append(EpisodeFile(str(path), split, condition, seed, POINTER_TRIALS))
     summary.episodes += episodes
     spec = _write_spec(root / SPEC_FILE, _package_text("pointer-paper.toml"), summary)
+    figures = pointer_figures(CONDITIONS, TRAIN_SEEDS, HELDOUT_SEEDS[0], POINTER_TRIALS)
     _write_card(root / CARD_FILE, "pointer-paper.md", summary, spec=spec.strip(),
                 files=_files_table(episodes, root), trials=f"{POINTER_TRIALS:,}",
-                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS))
+                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS),
+                figures=figures)
 
 
 def _listing(seeds: tuple[int, ...]) -> str:
@@ -216,7 +263,8 @@ def _build_pointer_arm(root: Path, summary: BuildSummary, source: Path | None) -
         tables.append(_files_table(episodes, root))
     _write_card(root / CARD_FILE, "pointer-arm.md", summary, files="\n\n".join(tables),
                 spec=spec_toml(arm_spec(2)).strip(), trials=f"{ARM_TRIALS:,}",
-                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS))
+                train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS),
+                figures=arm_figures(MAX_JOINTS, TRAIN_SEEDS, HELDOUT_SEEDS[0], ARM_TRIALS))
 
 
 # --- pr2-sample ------------------------------------------------------------------------------
@@ -229,31 +277,54 @@ def _build_pr2_sample(root: Path, summary: BuildSummary, source: Path | None) ->
                              f"/joint_states) into {folders['train']} and {folders['heldout']}, "
                              f"or rebuild with --source LOG")
         found = "No log was given at build time; the split folders are empty."
+        figures = "Build with `--source LOG` to get the figures of your log here."
+        files = "None: no log was given."
     else:
-        found = _add_source(source, folders["heldout"], root, summary)
-    _write_card(root / CARD_FILE, "pr2-sample.md", summary, spec=spec_text.strip(), found=found)
+        found, figures = _add_source(source, folders, root, summary)
+        files = _files_table(summary.episodes, root)
+    _write_card(root / CARD_FILE, "pr2-sample.md", summary, spec=spec_text.strip(), found=found,
+                figures=figures, files=files, share=f"{100 * SOURCE_SPLIT:.0f}")
 
 
-def _add_source(source: Path, heldout: Path, root: Path, summary: BuildSummary) -> str:
-    if not source.is_file():
-        raise InputError(f"--source {source}: no such file (give an MCAP log)")
-    target = heldout / source.name
-    try:
-        shutil.copyfile(source, target)
-    except OSError as err:
-        raise InputError(f"--source {source}: cannot copy it: {err.strerror or err}") from err
+def _add_source(source: Path, folders: dict[str, Path], root: Path,
+                summary: BuildSummary) -> tuple[str, str]:
+    """Split ``source`` by time into ``train/`` and ``heldout/``; the card's text and figures."""
+    if not source.exists():
+        raise InputError(f"--source {source}: no such log (give an MCAP file, a rosbag2 folder, "
+                         f"a .db3 or a .bag)")
+    stem = source.name.split(".")[0] or "log"
+    with open_log(source) as log:
+        span = log.time_range()
+    if span is None:
+        raise InputError(f"--source {source}: the log has no messages")
+    targets = {}
+    for split in (TRAIN, HELDOUT):
+        low, high = TimeSlice(split=SOURCE_SPLIT, part=split).window(*span)
+        targets[split] = folders[split] / f"{stem}-{split}.mcap"
+        copy_log(source, targets[split], start_ns=low, end_ns=high, overwrite=True)
     spec = load_spec(root / SPEC_FILE)
+    counts = {split: _check_fits(source, path, spec, folders) for split, path in targets.items()}
+    for split, path in targets.items():
+        summary.episodes.append(EpisodeFile(str(path), split, f"your log, {split} part", None, None))
+    summary.notes.append(f"split {source} by time: the first {100 * SOURCE_SPLIT:.0f} % into "
+                         f"{targets[TRAIN]}, the rest into {targets[HELDOUT]}")
+    found = (f"Built with `--source {source.name}`, split by time: the first "
+             f"{100 * SOURCE_SPLIT:.0f} % of its time went to `train/{targets[TRAIN].name}` "
+             f"({counts[TRAIN]}), the rest to `heldout/{targets[HELDOUT].name}` ({counts[HELDOUT]}).")
+    return found, log_figures(targets[TRAIN], targets[HELDOUT], root / SPEC_FILE)
+
+
+def _check_fits(source: Path, path: Path, spec, folders: dict[str, Path]) -> str:
+    """``"N steps and M events"`` of a split under the spec; refuse (and clean up) if it does not fit."""
     try:
-        [(_, episode, report)] = list(read_episodes([target], spec, Vocabulary()))
+        [(_, episode, report)] = list(read_episodes([path], spec, Vocabulary()))
     except SpecError as err:
-        target.unlink()
+        for folder in folders.values():
+            for file in folder.iterdir():
+                file.unlink()
         raise InputError(f"--source {source}: the pr2-sample spec does not fit it: {err}") from err
-    summary.episodes.append(EpisodeFile(str(target), "heldout", "your log", None, None))
-    summary.notes.append(f"copied {source} to {target}: {len(episode)} steps, "
-                         f"{episode.n_events} events under the spec")
-    return (f"Built with `--source {source.name}`, copied to `heldout/{source.name}`: "
-            f"{report.n_messages:,} messages read, "
-            f"{len(episode)} steps and {episode.n_events} events under the spec.")
+    return (f"{report.n_messages:,} messages read, {len(episode)} steps and {episode.n_events} "
+            f"events under the spec")
 
 
 DATASETS: dict[str, Dataset] = {

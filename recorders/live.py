@@ -32,10 +32,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from slearn import __version__
+from slearn.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
 from slearn.errors import InputError, SlearnError
+from slearn.files import write_atomic
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.spec import Categorical, ChannelSpec, Spec
 from slearn.vocabulary import ROLES
@@ -96,8 +98,12 @@ class EventFile:
 
     def __enter__(self) -> "EventFile":
         self._writer.__enter__()
-        for name, data in self._metadata.items():
-            self._writer.add_metadata(name, data)
+        try:
+            for name, data in self._metadata.items():
+                self._writer.add_metadata(name, data)
+        except BaseException as err:  # __exit__ is not called when __enter__ raises
+            self._writer.__exit__(type(err), err, err.__traceback__)
+            raise
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -120,6 +126,14 @@ class EventFile:
         self._writer.write_encoded(channel_id, int(time_ns),
                                    json.dumps(payload, separators=(",", ":")).encode())
         self.counts[channel] += 1
+
+    def mark_episode(self, time_ns: int, episode: int, name: str = "") -> None:
+        """Start episode ``episode`` at ``time_ns`` (:mod:`slearn.episodes`): write the marker
+        before the episode's first event."""
+        if EPISODE_TOPIC not in self._ids:
+            self._ids[EPISODE_TOPIC] = self._writer.register_channel(EPISODE_TOPIC, EPISODE_SCHEMA_NAME,
+                                                                     EPISODE_SCHEMA)
+        self._writer.write(self._ids[EPISODE_TOPIC], int(time_ns), {"episode": episode, "name": name})
 
     def flush(self) -> None:
         """Close the current chunk (it then survives a killed process)."""
@@ -264,12 +278,10 @@ def spec_toml(spec: Spec, comment: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_text(path: str | os.PathLike, text: str) -> None:
-    """Write a text file; an unwritable path is an :class:`InputError`."""
-    try:
-        Path(path).write_text(text, encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"cannot write {path}: {err.strerror or err}") from err
+def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = True,
+               inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Write a text file atomically; an unwritable path is a one-line :class:`InputError`."""
+    write_atomic(path, text, overwrite=overwrite, inputs=inputs)
 
 
 def _toml_value(value: Any) -> str:

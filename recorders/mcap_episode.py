@@ -1,9 +1,11 @@
 """Write one episode of JSON events to an MCAP file, atomically.
 
 :class:`EpisodeWriter` is a context manager around ``mcap.writer.Writer``. It writes to a
-temporary file next to the target and always calls ``Writer.finish()``, so the summary and
-footer are written. On a clean exit it fsyncs the file and ``os.replace``-s it onto the
-target, so a reader never sees a half-written episode.
+temporary file next to the target (:func:`slearn.files.atomic_write`) and always calls
+``Writer.finish()``, so the summary and footer are written. On a clean exit it fsyncs the
+file and renames it onto the target, so a reader never sees a half-written episode. A full
+disk or an unwritable folder is a one-line :class:`~slearn.errors.InputError`, and the
+temporary file is removed.
 
 When the block raises, what happens depends on ``keep_partial``:
 
@@ -14,7 +16,8 @@ When the block raises, what happens depends on ``keep_partial``:
 
 If the process is killed outright, only the temporary file (``.NAME.*.tmp`` in the same
 folder) remains; chunks written before the last :meth:`EpisodeWriter.flush` can be salvaged
-from it with a linear reader.
+from it with a linear reader (with ``keep_partial``, such files are never swept; without
+it they are swept by a later write of the same target once an hour old).
 
 Channels carry JSON objects (``message_encoding="json"``) with named ``jsonschema``
 schemas, which Foxglove shows as they are. Time fields inside messages use
@@ -25,16 +28,16 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import Any, Iterable, Iterator
 
 from mcap.writer import CompressionType, Writer
 
-from slearn.files import give_default_mode
 from slearn import __version__
 from slearn.errors import InputError, SlearnError
+from slearn.files import AtomicFile, atomic_write, write_error
 
 _NS_PER_S = 1_000_000_000
 
@@ -54,6 +57,8 @@ class EpisodeWriter:
             :class:`~slearn.errors.InputError`.
         keep_partial: when the block raises, keep what was written as a valid file.
         chunk_size: bytes per zstd-compressed chunk.
+        inputs: files the episode is made from; a target that is one of them is refused.
+        profile: the header's profile (``""``; copies of ROS logs keep ``ros1``/``ros2``).
 
     Example::
 
@@ -64,39 +69,46 @@ class EpisodeWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
-                 keep_partial: bool = False, chunk_size: int = 1 << 20) -> None:
+                 keep_partial: bool = False, chunk_size: int = 1 << 20,
+                 inputs: Iterable[str | os.PathLike] = (), profile: str = "") -> None:
         self.path = Path(path)
+        self.profile = profile
         self.overwrite = overwrite
         self.keep_partial = keep_partial
         self._chunk_size = chunk_size
-        self._file: IO[bytes] | None = None
-        self._tmp_path: Path | None = None
+        self._inputs = list(inputs)
+        self._out: AtomicFile | None = None
         self._writer: Writer | None = None
         self._schemas: dict[tuple[str, str], int] = {}
         self._sequences: dict[int, int] = {}
 
     def __enter__(self) -> "EpisodeWriter":
         self._check_target()
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                   dir=self.path.parent)
-        self._tmp_path = Path(tmp)
-        give_default_mode(fd)
-        self._file = os.fdopen(fd, "wb")
-        self._writer = Writer(self._file, chunk_size=self._chunk_size,
-                              compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library=f"slearn {__version__}")
+        self._out = atomic_write(self.path, overwrite=self.overwrite, inputs=self._inputs,
+                                 sweep=not self.keep_partial)
+        try:
+            with self._writing():
+                self._writer = Writer(self._out.file, chunk_size=self._chunk_size,
+                                      compression=CompressionType.ZSTD)
+                self._writer.start(profile=self.profile, library=f"slearn {__version__}")
+        except BaseException:
+            self._out.discard()
+            raise
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  traceback: TracebackType | None) -> None:
-        publish = exc_type is None or self.keep_partial
+        writer, self._writer = self._writer, None
+        if exc_type is not None and not self.keep_partial:
+            self._out.discard()
+            return
         try:
-            self._close()
+            with self._writing():
+                writer.finish()
         except BaseException:
-            publish = False
+            self._out.discard()
             raise
-        finally:
-            self._settle(publish)
+        self._out.commit()
 
     def register_channel(self, topic: str, schema_name: str, json_schema: dict[str, Any],
                          metadata: dict[str, str] | None = None) -> int:
@@ -105,9 +117,11 @@ class EpisodeWriter:
         key = (schema_name, schema_data.decode())
         schema_id = self._schemas.get(key)
         if schema_id is None:
-            schema_id = self._active().register_schema(schema_name, "jsonschema", schema_data)
+            with self._writing():
+                schema_id = self._active().register_schema(schema_name, "jsonschema", schema_data)
             self._schemas[key] = schema_id
-        channel_id = self._active().register_channel(topic, "json", schema_id, metadata or {})
+        with self._writing():
+            channel_id = self._active().register_channel(topic, "json", schema_id, metadata or {})
         self._sequences[channel_id] = 0
         return channel_id
 
@@ -124,12 +138,14 @@ class EpisodeWriter:
             raise InputError(f"{self.path}: channel id {channel_id} was not registered "
                              "(use register_channel's return value)")
         self._sequences[channel_id] = sequence + 1
-        writer.add_message(channel_id, log_time=log_time_ns, data=data,
-                                   publish_time=log_time_ns, sequence=sequence)
+        with self._writing():
+            writer.add_message(channel_id, log_time=log_time_ns, data=data,
+                               publish_time=log_time_ns, sequence=sequence)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Add an MCAP metadata record (per-episode facts: seed, condition, version)."""
-        self._active().add_metadata(name, {str(k): str(v) for k, v in data.items()})
+        with self._writing():
+            self._active().add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
     def flush(self) -> None:
         """Push buffered messages to the temporary file (call at episode ends in live loops).
@@ -137,7 +153,9 @@ class EpisodeWriter:
         Closes the current chunk, so what was written survives a killed process in the
         temporary file.
         """
-        self._active().flush()
+        with self._writing():
+            self._active().flush()
+            self._out.file.flush()
 
     def _check_target(self) -> None:
         if self.path.exists() and not self.overwrite:
@@ -151,30 +169,10 @@ class EpisodeWriter:
             raise SlearnError(f"EpisodeWriter for {self.path} is not open: use it in a with block")
         return self._writer
 
-    def _close(self) -> None:
-        writer, self._writer = self._writer, None
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """A failed write (a full disk) is a one-line error naming the target."""
         try:
-            writer.finish()
-            self._file.flush()
-            os.fsync(self._file.fileno())
-        finally:
-            self._file.close()
-
-    def _settle(self, publish: bool) -> None:
-        if publish:
-            os.replace(self._tmp_path, self.path)
-            _fsync_folder(self.path.parent)
-        else:
-            self._tmp_path.unlink(missing_ok=True)
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Make the rename durable (best effort: not every platform can open a folder)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+            yield
+        except OSError as err:
+            raise write_error(self.path, err) from err

@@ -64,6 +64,7 @@ COMMAND_NAMES = ("L", "R")
 COMMAND_CHANNEL = "/pointer/command"
 POSITION_CHANNEL = "/pointer/position"
 MAX_ERROR_DEG = 10.0
+MAX_TRIALS = 10_000_000  # a run is held in memory (about 12 bytes a trial)
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class PointerConfig:
     Attributes:
         condition: one of :data:`CONDITIONS`, or effects of :data:`EFFECTS` joined by
             ``+`` (``"error+delay"``).
-        trials: number of trials (commands), at least 1.
+        trials: number of trials (commands), 1 to :data:`MAX_TRIALS`.
         seed: non-negative seed of all randomness.
         switch_trial: first trial of the changed dynamics (``scramble``, ``reversal``).
         error_deg: half-width of the uniform move noise (``error``), 0 to one bin.
@@ -142,9 +143,9 @@ class PointerConfig:
 
 def _validate(config: PointerConfig) -> None:
     _check_condition(config.condition)
-    _check_int("trials", config.trials, minimum=1)
+    _check_int("trials", config.trials, minimum=1, maximum=MAX_TRIALS)
     _check_int("seed", config.seed, minimum=0)
-    _check_int("switch_trial", config.switch_trial, minimum=0)
+    _check_int("switch_trial", config.switch_trial, minimum=0, maximum=MAX_TRIALS)
     _check_int("bins", config.bins, minimum=MIN_BINS, maximum=MAX_BINS)
     effects = config.effects
     if effects & set(SWITCHING) and config.switch_trial >= config.trials:
@@ -185,7 +186,7 @@ def _check_switch_back(config: PointerConfig, effects: frozenset[str]) -> None:
 def _check_int(name: str, value: object, minimum: int, maximum: int | None = None) -> None:
     if (isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum
             or (maximum is not None and value > maximum)):
-        bound = f">= {minimum}" if maximum is None else f"in {minimum}..{maximum}"
+        bound = f"from {minimum} to {maximum:,}" if maximum is not None else f">= {minimum}"
         raise InputError(f"pointer {name} must be an integer {bound}, not {value!r}")
 
 

@@ -19,14 +19,17 @@ Values that read as integers become integers (``"17"`` -> 17); in CSV also numbe
 (``"0.5"`` -> 0.5) so that numeric specs can bin them; everything else is text.
 
 Episodes: each sequence (a line, an SPMF ``-2`` sequence, a CSV/JSONL ``episode`` value)
-becomes one episode, one MCAP file each; with ``per_file=True`` the whole file is one
-episode (sequences follow each other in time). Tick ``k`` of a sequence is at log time
-``k * tick_ns`` from the sequence's start.
+becomes one episode. All go into one MCAP file, one after the other in time (each starts
+one tick after the previous one ends), each started by an episode marker on
+``/slearn/episode`` (:mod:`slearn.episodes`), so learn and replay parse them one by one.
+With ``per_file=True`` the whole file is one episode (no markers). Tick ``k`` of a
+sequence is at log time ``k * tick_ns`` from the sequence's start.
 
 Roles: ``roles={channel: role}`` wins over a ``role`` column; otherwise a channel is an
-observation. Each output file holds one JSON channel per channel name
+observation. The output holds one JSON channel per channel name
 (:data:`~slearn.recorders.live.EVENT_SCHEMA`, role in the channel metadata) and a
-``slearn.stream`` metadata record (source, format, sequence, first line).
+``slearn.stream`` metadata record (source, format, number of sequences); each episode
+marker names the source line its sequence starts on.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from typing import Any, Iterable, Iterator
 
 from slearn import __version__
 from slearn.errors import InputError
+from slearn.files import check_output
 from slearn.recorders.live import EventFile, check_role, event_value, events_spec
 from slearn.spec import Spec
 from slearn.vocabulary import ROLES
@@ -84,6 +88,7 @@ class StreamSummary:
     channels: dict[str, str]
     events: int
     size_bytes: int
+    episodes: int = 1
 
     def to_dict(self) -> dict:
         """A JSON-ready dict."""
@@ -94,19 +99,18 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
                    per_file: bool = False, roles: dict[str, str] | None = None,
                    channel: str = DEFAULT_CHANNEL, tick_ns: int = TICK_NS,
                    overwrite: bool = False) -> StreamSummary:
-    """Convert one sequence file into MCAP episodes.
+    """Convert one sequence file into one MCAP file of episodes.
 
     Args:
         source: the sequence file.
-        output: the MCAP file for a single episode. With several episodes, episode ``k``
-            goes to ``STEM-kkkkk.mcap`` beside it; an existing folder receives
-            ``SOURCESTEM[-kkkkk].mcap`` files.
+        output: the MCAP file; an existing folder receives ``SOURCESTEM.mcap``.
         fmt: one of :data:`FORMATS`.
         per_file: make the whole file one episode.
         roles: ``{channel: "action" | "observation"}``, over any ``role`` column.
         channel: the channel of tokens without ``NAME=``.
         tick_ns: log time between ticks of token and SPMF sequences.
-        overwrite: replace existing outputs (refused otherwise, before anything is written).
+        overwrite: replace existing outputs (refused otherwise, before anything is written;
+            an output that is ``source`` itself is always refused).
 
     Raises:
         InputError: unreadable file, a malformed line (named), a role conflict, or an
@@ -115,18 +119,17 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
     source = Path(source)
     fmt = detect_format(source) if fmt == "auto" else _known_format(fmt)
     sequences = read_sequences(source, fmt, channel=channel, tick_ns=tick_ns)
-    if per_file:
-        sequences = [_concatenate(sequences, tick_ns)]
     channel_roles = resolve_roles(sequences, roles or {}, source)
-    paths = output_paths(Path(output), source, len(sequences))
-    _check_targets(paths, overwrite)
-    for k, (sequence, path) in enumerate(zip(sequences, paths)):
-        _write_episode(sequence, path, channel_roles, overwrite,
-                       {"source": source.name, "format": fmt, "sequence": str(k),
-                        "first_line": str(sequence.line), "slearn_version": __version__})
-    return StreamSummary(str(source), fmt, [str(p) for p in paths], channel_roles,
-                         sum(len(s.events) for s in sequences),
-                         sum(p.stat().st_size for p in paths))
+    path = output_path(Path(output), source)
+    check_output(path, overwrite, inputs=[source])
+    starts = _lay_out(sequences, tick_ns)
+    marked = len(sequences) > 1 and not per_file
+    _write_episodes(sequences, starts, marked, path, channel_roles, overwrite,
+                    {"source": source.name, "format": fmt, "sequences": str(len(sequences)),
+                     "slearn_version": __version__})
+    return StreamSummary(str(source), fmt, [str(path)], channel_roles,
+                         sum(len(s.events) for s in sequences), path.stat().st_size,
+                         len(sequences) if marked else 1)
 
 
 def stream_spec(summary: StreamSummary) -> Spec:
@@ -182,14 +185,9 @@ def resolve_roles(sequences: list[Sequence], roles: dict[str, str], path: Path) 
     return {name: roles.get(name) or role or DEFAULT_ROLE for name, (role, _) in found.items()}
 
 
-def output_paths(output: Path, source: Path, n: int) -> list[Path]:
-    """Where ``n`` episodes go (see :func:`convert_stream`)."""
-    if output.is_dir():
-        output = output / f"{source.stem}.mcap"
-    if n == 1:
-        return [output]
-    suffix = output.suffix or ".mcap"
-    return [output.with_name(f"{output.stem}-{k:05d}{suffix}") for k in range(n)]
+def output_path(output: Path, source: Path) -> Path:
+    """The MCAP file a conversion writes (see :func:`convert_stream`)."""
+    return output / f"{source.stem}.mcap" if output.is_dir() else output
 
 
 def _known_format(fmt: str) -> str:
@@ -198,35 +196,29 @@ def _known_format(fmt: str) -> str:
     return fmt
 
 
-def _check_targets(paths: list[Path], overwrite: bool) -> None:
-    for path in paths:
-        if path.exists() and not overwrite:
-            raise InputError(f"{path} already exists: pass --force to overwrite it")
-        if not path.parent.is_dir():
-            raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
-
-
-def _write_episode(sequence: Sequence, path: Path, roles: dict[str, str], overwrite: bool,
-                   metadata: dict[str, str]) -> None:
+def _write_episodes(sequences: list[Sequence], starts: list[int], marked: bool, path: Path,
+                    roles: dict[str, str], overwrite: bool, metadata: dict[str, str]) -> None:
+    """Write each sequence shifted to its start, after an episode marker when ``marked``."""
     with EventFile(path, overwrite=overwrite, metadata={METADATA_NAME: metadata}) as out:
-        for name, role in roles.items():  # every file has every channel: one spec reads all
+        for name, role in roles.items():  # every channel up front: one spec reads all
             out.register(name, role)
-        for event in sequence.events:
-            out.write(event.channel, event.time_ns, event.value)
+        for k, (sequence, start) in enumerate(zip(sequences, starts)):
+            offset = start - min(e.time_ns for e in sequence.events)
+            if marked:
+                out.mark_episode(start, k, f"{metadata['source']}:{sequence.line}")
+            for event in sequence.events:
+                out.write(event.channel, event.time_ns + offset, event.value)
 
 
-def _concatenate(sequences: list[Sequence], tick_ns: int) -> Sequence:
-    """One sequence of all, each shifted to start one tick after the previous one ends."""
-    whole = Sequence(sequences[0].line)
-    offset = 0
+def _lay_out(sequences: list[Sequence], tick_ns: int) -> list[int]:
+    """Start time of each sequence: one tick after the previous one ends (the first at its own)."""
+    starts, end = [], None
     for sequence in sequences:
-        start = min(e.time_ns for e in sequence.events)
-        for event in sequence.events:
-            event.time_ns += offset - start
-        end = max(e.time_ns for e in sequence.events)
-        whole.events.extend(sequence.events)
-        offset = end + tick_ns
-    return whole
+        first = min(e.time_ns for e in sequence.events)
+        start = first if end is None else end + tick_ns
+        starts.append(start)
+        end = start + max(e.time_ns for e in sequence.events) - first
+    return starts
 
 
 # --- reading ------------------------------------------------------------------------------

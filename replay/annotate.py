@@ -1,42 +1,46 @@
-"""Annotated logs: a replayed MCAP file copied with the library's predictions beside it.
+"""Annotated logs: a replayed log copied with the library's predictions beside it.
 
-The output holds every channel of the source log (raw messages, schemas, encodings,
-sequence numbers and times as they were) plus three JSON channels with jsonschema
-schemas, one message each per predicted observation event, at the log time of the
-observation it predicted (so in Foxglove the prediction lines up with what happened):
+The output is a faithful MCAP copy of the source log (:mod:`slearn.recorders.mcap_copy`:
+its profile, channels, raw messages, schemas, encodings, sequence numbers and times, its
+metadata records and attachments) plus three JSON channels with jsonschema schemas, one
+message each per predicted observation event, at the log time of the observation it
+predicted (so in Foxglove the prediction lines up with what happened):
 
-* ``/slearn/prediction`` (``slearn.replay.Prediction``): ``step``, ``predicted`` and
-  ``actual`` as ``channel=value`` labels, ``correct``, ``abstained``, ``score``,
-  ``matched_length`` (history tokens matched) and the ranked guesses ``top``;
+* ``/slearn/prediction`` (``slearn.replay.Prediction``): ``step``, ``episode``,
+  ``predicted`` and ``actual`` as ``channel=value`` labels (bins as value ranges),
+  ``correct``, ``abstained``, ``score``, ``matched_length`` (history tokens matched) and
+  the ranked guesses ``top``;
 * ``/slearn/correct`` (``slearn.replay.Correct``): ``correct`` and ``value`` (1 or 0), to plot;
 * ``/slearn/surprise`` (``slearn.replay.Surprise``): ``bits``, ``-log2`` of the
   probability the library gave what happened (see
   :meth:`slearn.replay.evaluate.EpisodeOutcome.surprise_bits`), and that ``probability``.
 
-A metadata record ``slearn.replay`` names the library, the mode and the accuracy.
-Files are written atomically (:class:`~slearn.recorders.mcap_episode.EpisodeWriter`).
+A metadata record ``slearn.replay`` names the library, the mode, the accuracy and the
+source's header library. A log with several episodes gets one annotated copy holding all
+of them. Beside each copy, ``NAME.layout.json`` is a Foxglove layout (import it in
+Foxglove: Layouts, Import from file) showing the predicted against the actual value and
+the surprise and correctness over time. Files are written atomically.
 """
 
 from __future__ import annotations
 
-import copy
 import json
 import os
-from array import array
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from slearn.bags import open_log
+from slearn.episodes import split_episode_name
 from slearn.errors import InputError, SlearnError
-from slearn.mcap_read import ChannelInfo, McapLog, RawMessage
-from slearn.recorders.mcap_episode import EpisodeWriter
+from slearn.files import write_atomic
+from slearn.recorders.mcap_copy import CopyWriter
 from slearn.replay.evaluate import Evaluation, EpisodeOutcome
 from slearn.replay.metrics import ChannelDecoder
-from slearn.spec import Spec
-from slearn.vocabulary import Vocabulary
+from slearn.serialize import iter_step_times
+from slearn.slicing import slice_from_dict
 
 PREDICTION_TOPIC = "/slearn/prediction"
 CORRECT_TOPIC = "/slearn/correct"
@@ -48,6 +52,7 @@ PREDICTION_SCHEMA = {
     "type": "object",
     "properties": {
         "step": {"type": "integer", "description": "step of the episode"},
+        "episode": {"type": "string", "description": "the episode (LOG, or LOG#k in a log of several)"},
         "predicted": {"type": "string", "description": "channel=value, or (abstained)"},
         "actual": {"type": "string", "description": "channel=value"},
         "correct": {"type": "boolean"},
@@ -92,7 +97,8 @@ class AnnotateSummary:
 def annotated_paths(logs: list[str], out: str | os.PathLike) -> list[Path]:
     """Output file per log: ``out`` itself for one log, else ``out/<log>.annotated.mcap``.
 
-    Logs of the same name get ``-2``, ``-3``, ... Call it before replaying to fail early.
+    Logs of the same name get ``-2``, ``-3``, ... Call it before replaying to fail early
+    (with :func:`layout_path` of each, the files it will write).
 
     Raises:
         InputError: several logs and ``out`` is not an existing folder.
@@ -105,43 +111,86 @@ def annotated_paths(logs: list[str], out: str | os.PathLike) -> list[Path]:
                          "folder to write one annotated file per log into")
     paths, seen = [], Counter()
     for log in logs:
-        stem = Path(log).stem
+        stem = Path(log.rstrip("/")).stem
         seen[stem] += 1
         suffix = f"-{seen[stem]}" if seen[stem] > 1 else ""
         paths.append(out / f"{stem}{suffix}.annotated.mcap")
     return paths
 
 
-def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *,
-                    overwrite: bool = False) -> list[AnnotateSummary]:
-    """Write an annotated copy of every replayed log (see :func:`annotated_paths`).
+def layout_path(annotated: str | os.PathLike) -> Path:
+    """The Foxglove layout written beside an annotated file (``NAME.layout.json``)."""
+    annotated = Path(annotated)
+    return annotated.with_name(f"{annotated.stem}.layout.json")
+
+
+def write_annotated(evaluation: Evaluation, out: str | os.PathLike, *, overwrite: bool = False,
+                    inputs: list[str | os.PathLike] = ()) -> list[AnnotateSummary]:
+    """Write an annotated copy of every replayed log (see :func:`annotated_paths`), and a
+    Foxglove layout beside each.
 
     ``evaluation`` must have been made with ``keep_outcomes=True`` from logs on disk.
 
     Raises:
-        InputError: an output exists (without ``overwrite``) or cannot be written.
+        InputError: an output exists (without ``overwrite``), is one of the replayed logs
+            or ``inputs`` (always), or cannot be written.
     """
     if len(evaluation.outcomes) != len(evaluation.episodes) or evaluation.spec is None:
         raise SlearnError("annotated logs need a replay of logs on disk kept with keep_outcomes=True")
-    targets = annotated_paths([e.name for e in evaluation.episodes], out)
+    groups = _by_log(evaluation.outcomes)
+    targets = annotated_paths([log for log, _ in groups], out)
     decoder = ChannelDecoder(evaluation.tokens, evaluation.vocabulary)
-    return [_annotate_one(evaluation, outcome, target, decoder, overwrite)
-            for outcome, target in zip(evaluation.outcomes, targets)]
+    sources = [*inputs, *(log for log, _ in groups)]
+    written = []
+    for (log, outcomes), target in zip(groups, targets):
+        written.append(_annotate_one(evaluation, log, outcomes, target, decoder, overwrite, sources))
+        write_atomic(layout_path(target), json.dumps(foxglove_layout(), indent=2) + "\n",
+                     overwrite=overwrite, inputs=sources)
+    return written
 
 
-def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
-                  decoder: ChannelDecoder, overwrite: bool) -> AnnotateSummary:
-    times = step_times(outcome.name, evaluation.spec, evaluation.vocabulary)
-    if len(times) != len(outcome) + outcome.first_step:
-        raise SlearnError(f"{outcome.name}: read {len(times)} steps for the annotated copy but "
-                          f"{len(outcome) + outcome.first_step} when replaying; was the log changed?")
-    steps = np.flatnonzero(outcome.evaluated)
-    at_ns = times[steps + outcome.first_step]
-    payloads = _payloads(outcome, steps, decoder)
-    copied = 0
-    with _CopyWriter(target, overwrite=overwrite) as out:
+def _by_log(outcomes: list[EpisodeOutcome]) -> list[tuple[str, list[EpisodeOutcome]]]:
+    """Consecutive episodes of one log, as replayed (a log given twice is two groups)."""
+    groups: list[tuple[str, list[EpisodeOutcome]]] = []
+    for outcome in outcomes:
+        log = split_episode_name(outcome.name)[0]
+        if not groups or groups[-1][0] != log or any(o.name == outcome.name for o in groups[-1][1]):
+            groups.append((log, []))
+        groups[-1][1].append(outcome)
+    return groups
+
+
+def _annotations(evaluation: Evaluation, log: str, outcomes: list[EpisodeOutcome],
+                 decoder: ChannelDecoder) -> tuple[np.ndarray, list[tuple]]:
+    """Times and payloads of every annotation of one log, in time order."""
+    times = dict(iter_step_times(log, evaluation.spec, evaluation.vocabulary,
+                                 slice_from_dict(evaluation.setup.get("slice"))))
+    at, payloads = [], []
+    for outcome in outcomes:
+        steps_at = times.get(outcome.name, np.zeros(0, np.int64))
+        if len(steps_at) != len(outcome) + outcome.first_step:
+            raise SlearnError(f"{outcome.name}: read {len(steps_at)} steps for the annotated copy "
+                              f"but {len(outcome) + outcome.first_step} when replaying; was the log "
+                              f"changed?")
+        steps = np.flatnonzero(outcome.evaluated)
+        at.append(steps_at[steps + outcome.first_step])
+        payloads += _payloads(outcome, steps, decoder)
+    at_ns = np.concatenate(at) if at else np.zeros(0, np.int64)
+    order = np.argsort(at_ns, kind="stable")
+    return at_ns[order], [payloads[i] for i in order.tolist()]
+
+
+def _annotate_one(evaluation: Evaluation, log_path: str, outcomes: list[EpisodeOutcome],
+                  target: Path, decoder: ChannelDecoder, overwrite: bool,
+                  sources: list) -> AnnotateSummary:
+    at_ns, payloads = _annotations(evaluation, log_path, outcomes, decoder)
+    copied = pending = 0
+    with open_log(log_path) as log, CopyWriter(target, overwrite=overwrite, inputs=sources,
+                                               profile=log.profile) as out:
+        out.copy_extras(log)
         out.add_metadata("slearn.replay", {
-            "source": outcome.name, "mode": evaluation.mode,
+            "source": log_path, "source_profile": log.profile, "source_library": log.library,
+            "mode": evaluation.mode, "episodes": str(len(outcomes)),
             "library": str((evaluation.setup.get("library") or {}).get("path")),
             "accuracy": f"{evaluation.accuracy:.6f}",
             "surprise": "lower bound (online: 1 - score when wrong)" if evaluation.mode == "online"
@@ -149,16 +198,15 @@ def _annotate_one(evaluation: Evaluation, outcome: EpisodeOutcome, target: Path,
         topics = [out.register_channel(t, s["title"], s) for t, s in
                   ((PREDICTION_TOPIC, PREDICTION_SCHEMA), (CORRECT_TOPIC, CORRECT_SCHEMA),
                    (SURPRISE_TOPIC, SURPRISE_SCHEMA))]
-        pending = 0
-        for message in _iter_source(outcome.name):
-            while pending < len(steps) and at_ns[pending] < message.log_time_ns:
+        for message in log.iter_messages():
+            while pending < len(at_ns) and at_ns[pending] < message.log_time_ns:
                 _write_annotation(out, topics, int(at_ns[pending]), payloads, pending)
                 pending += 1
             out.copy_message(message)
             copied += 1
-        for i in range(pending, len(steps)):
+        for i in range(pending, len(at_ns)):
             _write_annotation(out, topics, int(at_ns[i]), payloads, i)
-    return AnnotateSummary(str(target), outcome.name, copied, len(steps))
+    return AnnotateSummary(str(target), log_path, copied, len(at_ns))
 
 
 def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecoder) -> list[tuple]:
@@ -176,6 +224,7 @@ def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecode
     predicted, actual = outcome.predicted.tolist(), outcome.actual.tolist()
     score, matched = np.round(outcome.score, 6).tolist(), outcome.matched_length.tolist()
     top_k = outcome.top_k.tolist()
+    episode = json.dumps(outcome.name).encode()
     out = []
     for s in steps.tolist():
         key = (predicted[s], actual[s], score[s], matched[s], top_k[s])
@@ -189,7 +238,7 @@ def _payloads(outcome: EpisodeOutcome, steps: np.ndarray, decoder: ChannelDecode
         if surprise is None:
             surprise = surprises[bits[s]] = _encode({"bits": bits[s],
                                                      "probability": round(2.0 ** -bits[s], 6)})
-        out.append((b'{"step":%d,' % (s + outcome.first_step) + body,
+        out.append((b'{"step":%d,"episode":%s,' % (s + outcome.first_step, episode) + body,
                     _CORRECT[key[0] == key[1]], surprise))
     return out
 
@@ -201,91 +250,35 @@ def _encode(message: dict) -> bytes:
     return json.dumps(message, separators=(",", ":")).encode()
 
 
-def _write_annotation(out: "_CopyWriter", topics: list[int], at_ns: int, payloads: list[tuple],
+def _write_annotation(out: CopyWriter, topics: list[int], at_ns: int, payloads: list[tuple],
                       i: int) -> None:
     for channel_id, data in zip(topics, payloads[i]):
         out.write_encoded(channel_id, at_ns, data)
 
 
-def _iter_source(path: str) -> Iterator[RawMessage]:
-    with McapLog(path) as log:
-        yield from log.iter_messages()
+# --- the Foxglove layout ---------------------------------------------------------------------
 
+def foxglove_layout() -> dict:
+    """A Foxglove layout: predicted against actual (state transitions) above, surprise in
+    bits and correctness (plot) below."""
+    states, plot = "StateTransitions!slearn-prediction", "Plot!slearn-surprise"
+    return {
+        "configById": {
+            states: {"paths": [
+                {"value": f"{PREDICTION_TOPIC}.actual", "timestampMethod": "receiveTime", "label": "actual"},
+                {"value": f"{PREDICTION_TOPIC}.predicted", "timestampMethod": "receiveTime",
+                 "label": "predicted"}], "isSynced": True},
+            plot: {"paths": [
+                {"value": f"{SURPRISE_TOPIC}.bits", "enabled": True, "timestampMethod": "receiveTime",
+                 "label": "surprise (bits)"},
+                {"value": f"{CORRECT_TOPIC}.value", "enabled": True, "timestampMethod": "receiveTime",
+                 "label": "correct (1/0)"}],
+                "showXAxisLabels": True, "showYAxisLabels": True, "showLegend": True,
+                "isSynced": True, "xAxisVal": "timestamp", "title": "slearn surprise"},
+        },
+        "globalVariables": {},
+        "userNodes": {},
+        "playbackConfig": {"speed": 1},
+        "layout": {"first": states, "second": plot, "direction": "column", "splitPercentage": 50},
+    }
 
-class _CopyWriter(EpisodeWriter):
-    """An :class:`EpisodeWriter` that also copies raw messages of other channels as they are."""
-
-    def __enter__(self) -> "_CopyWriter":
-        super().__enter__()
-        self._copied: dict[int, int] = {}
-        return self
-
-    def copy_message(self, message: RawMessage) -> None:
-        """Write ``message`` on a copy of its channel (registered on first use)."""
-        channel_id = self._copied.get(message.channel.id)
-        if channel_id is None:
-            channel_id = self._copied[message.channel.id] = self._copy_channel(message.channel)
-        self._active().add_message(channel_id, log_time=message.log_time_ns, data=message.data,
-                                   publish_time=message.publish_time_ns, sequence=message.sequence)
-
-    def _copy_channel(self, channel: ChannelInfo) -> int:
-        writer = self._active()
-        schema_id = 0
-        if channel.schema is not None:
-            s = channel.schema
-            key = ("copied", s.name, s.encoding, s.data)
-            schema_id = self._schemas.get(key) or writer.register_schema(s.name, s.encoding, s.data)
-            self._schemas[key] = schema_id
-        return writer.register_channel(channel.topic, channel.message_encoding, schema_id,
-                                       dict(channel.metadata))
-
-
-# --- when each step happened ----------------------------------------------------------------
-
-def step_times(path: str, spec: Spec, vocabulary: Vocabulary) -> np.ndarray:
-    """Log time (ns) of each step of the episode :func:`slearn.serialize.read_episodes` makes
-    of ``path``: the time of its observations, or of its actions when it has none.
-
-    The log is read again through the same path as :mod:`slearn.serialize` (its step
-    builder, with the times kept), so steps match one for one.
-    """
-    from slearn import serialize
-
-    vocabulary = copy.deepcopy(vocabulary)
-    values = serialize.iter_field_values(path, spec)
-    events = serialize._symbolize(values, spec, vocabulary, path)
-    if spec.mode == "tick":
-        return _tick_times(events, spec.tick_ns)
-    if spec.mode == "change":
-        events = serialize._only_changes(events)
-    builder = _timed_builder(serialize)
-    for log_time, _, symbol, action in events:
-        builder.add(log_time, symbol, action)
-    builder.build()
-    return np.frombuffer(builder.times, np.int64).copy()
-
-
-def _tick_times(events, tick_ns: int) -> np.ndarray:
-    events = iter(events)
-    first = next(events, None)
-    if first is None:
-        return np.zeros(0, np.int64)
-    last = first[0]
-    for event in events:
-        last = event[0]
-    n = -(-(last - first[0]) // tick_ns) + 1  # the ticks before the last event, then one more
-    return first[0] + tick_ns * np.arange(n, dtype=np.int64)
-
-
-def _timed_builder(serialize):
-    class TimedSteps(serialize._StepBuilder):
-        def __init__(self) -> None:
-            super().__init__()
-            self.times = array("q")
-
-        def close(self) -> None:
-            if self.open:
-                self.times.append(self.obs_time if self.obs_time is not None else self.action_time)
-            super().close()
-
-    return TimedSteps()

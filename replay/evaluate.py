@@ -34,15 +34,18 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from slearn.errors import InputError, TruncatedLogWarning
+from slearn.bags import is_log_path
+from slearn.errors import DataWarning, InputError, TruncatedLogWarning
 from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.literal import LiteralLibrary
 from slearn.mcap_read import ReadReport
 from slearn.online import Reports
 from slearn.replay.baselines import Baselines
+from slearn.replay.honest import HonestScores
 from slearn.replay.metrics import (ChannelCounts, ChannelDecoder, Curve, Tally, channel_counts,
-                                   channel_hits, confusions, learning_curve, nice_window,
-                                   score_steps)
+                                   channel_hits, confusions, learning_curve, score_steps)
+from slearn.replay.windows import data_window
+from slearn.slicing import TimeSlice, slice_from_dict
 from slearn.spec import Spec
 from slearn.stream import Episode
 from slearn.tokens import OBSERVATION, TokenTable, _intern
@@ -174,6 +177,7 @@ class Evaluation:
     vocabulary: Vocabulary | None = None
     tokens: TokenTable | None = None
     scoring: dict[str, Any] = field(default_factory=dict)
+    honest: HonestScores | None = None
 
     @property
     def accuracy(self) -> float:
@@ -215,6 +219,8 @@ class Evaluation:
                           "channel=value, ..." labels
             speed         {predictions, evaluation_s, predictions_per_s, total_s}
             notes, warnings  [str]
+            honest        intervals, the persistence baseline, paired lift intervals,
+                          small-sample channels (:meth:`HonestScores.to_dict`)
 
         ``TALLY`` is ``events, correct, abstained, accuracy, abstention_rate,
         accuracy_when_predicting, top_k_correct, top_k_accuracy, baselines: {frequency,
@@ -241,6 +247,7 @@ class Evaluation:
                       "total_s": None if self.total_s is None else round(self.total_s, 6)},
             "notes": self.notes,
             "warnings": self.warnings,
+            "honest": self.honest.to_dict() if self.honest is not None else None,
         }
 
 
@@ -280,7 +287,7 @@ def iter_evaluation(library: PatternLibrary | LiteralLibrary,
         outcome = _predict_episode(name, episode, library, baselines, online, baselines_learn,
                                    top_k, steps)
         if window is None and len(outcome):
-            window = nice_window(len(outcome))
+            window = data_window(len(outcome), int(outcome.evaluated.sum()))
         summary = _summarize(outcome, decoder, window or 1, report)
         elapsed += time.perf_counter() - started
         totals += summary.tally
@@ -412,10 +419,13 @@ def evaluate(library: PatternLibrary | LiteralLibrary,
     checkpoints = iter_evaluation(library, episodes, vocabulary, online=online, top_k=top_k,
                                   window=window, baselines=baselines, baselines_learn=learn,
                                   steps=steps)
+    result.honest = HonestScores()
     for point in checkpoints:
         _collect(result, point, wrong, keep_outcomes)
+        result.honest.add(point.outcome, decoder)
         if progress:
             _progress_line(point)
+    result.warnings += result.honest.warnings()
     result.confusions = [(decoder.label(p), decoder.label(a), n)
                          for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
@@ -476,13 +486,15 @@ class _Setup:
     facts: dict[str, Any]
     training_logs: list[str]
     notes: list[str]
+    training_slices: dict[str, TimeSlice] = field(default_factory=dict)
 
 
 def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike | None = None,
                 spec: str | os.PathLike | None = None, online: bool = False, top_k: int = 3,
                 window: int | None = None, max_length: int = DEFAULT_MAX_LENGTH,
                 baseline_logs: Iterable[str | os.PathLike] | None = None,
-                keep_outcomes: bool = False, progress: bool = False) -> Evaluation:
+                keep_outcomes: bool = False, progress: bool = False,
+                time_slice: TimeSlice | None = None) -> Evaluation:
     """Evaluate a saved library (or, with ``spec`` only, an empty one) on MCAP logs.
 
     The logs are read and binned as at learning time (the library's spec, fitted edges
@@ -492,8 +504,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     Args:
         logs: held-out MCAP files, one episode each, in this order.
         library: a library file written by :func:`slearn.storage.save_library`.
-        spec: a TOML spec, to start from an empty library (``online`` is then implied)
-            or for a library saved without its spec.
+        spec: a TOML spec (or a :class:`~slearn.spec.Spec`), to start from an empty
+            library (``online`` is then implied) or for a library saved without its spec.
         online: learn while replaying (prequential); else the library stays frozen.
         top_k, window: see :func:`iter_evaluation`.
         max_length: context length of an empty library.
@@ -501,6 +513,11 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
             training logs when its provenance names them and they are unchanged on disk).
         keep_outcomes: keep per-step predictions (for :mod:`slearn.replay.annotate`).
         progress: progress on stderr.
+        time_slice: replay only this slice of each log's time (``--split``: the held-out
+            part); the baselines count each training log's slice the library learned.
+
+    Data warnings (values outside a range, a spec without actions, too few events per
+    channel) end up in the result's ``warnings``.
 
     Raises:
         InputError: no library and no spec, a spec given for a library that has its own,
@@ -512,30 +529,36 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     if not logs:
         raise InputError("no logs to replay: give at least one MCAP file")
     for path in logs:
-        if not os.path.isfile(path):
+        if not os.path.isfile(path) and not is_log_path(path):
             raise InputError(f"{path}: no such log file")
     setup = _open_library(library, spec, logs) if library is not None else \
         _empty_library(spec, max_length, logs, progress)
     online = online or library is None
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported in the result instead
+        warnings.simplefilter("always", DataWarning)
         baselines, fit = _fit_baselines(setup, baseline_logs, progress)
-        episodes = _read(logs, setup.spec, setup.vocabulary, progress)
+        episodes = _read(logs, setup.spec, setup.vocabulary, progress, time_slice)
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
                           window=window, baselines=baselines, baseline_fit=fit,
                           keep_outcomes=keep_outcomes, progress=progress)
+    result.warnings[:0] = setup.spec.warnings() + list(dict.fromkeys(
+        str(w.message) for w in caught if issubclass(w.category, DataWarning)))
     result.setup = {**setup.facts, "logs": logs, "spec": setup.spec.to_dict()}
+    if time_slice is not None:
+        result.setup["slice"] = time_slice.to_dict()
     result.notes[:0] = setup.notes
     result.spec = setup.spec
     result.total_s = time.perf_counter() - started
     return result
 
 
-def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary,
-          progress: bool) -> Iterator[tuple[str, Episode, ReadReport]]:
+def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary, progress: bool,
+          window: TimeSlice | dict[str, TimeSlice] | None = None
+          ) -> Iterator[tuple[str, Episode, ReadReport]]:
     from slearn.serialize import read_episodes
 
-    yield from read_episodes(paths, spec, vocabulary, progress=progress)
+    yield from read_episodes(paths, spec, vocabulary, progress=progress, window=window)
 
 
 def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
@@ -550,7 +573,8 @@ def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
     if loaded.spec is None and spec_path is None:
         raise InputError(f"{path}: the library was saved without a spec: give the one it was "
                          "learned with (--spec FILE)")
-    spec = loaded.spec if loaded.spec is not None else load_spec(spec_path)
+    spec = loaded.spec if loaded.spec is not None else \
+        spec_path if isinstance(spec_path, Spec) else load_spec(spec_path)
     if not spec.fitted:
         raise InputError(f"{path}: the library's spec has unfitted quantile bins: re-learn it")
     lib = loaded.library
@@ -558,8 +582,9 @@ def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
                          "patterns": len(lib), "max_length": lib.max_length,
                          "max_patterns": lib.max_patterns, "clock": lib.clock},
              "params": _jsonable(loaded.params), "provenance": _jsonable(loaded.provenance)}
-    return _Setup(lib, loaded.vocabulary, spec, facts,
-                  _training_logs(loaded.provenance, os.path.dirname(os.fspath(path))), [])
+    training = _training_logs(loaded.provenance, os.path.dirname(os.fspath(path)))
+    return _Setup(lib, loaded.vocabulary, spec, facts, training, [],
+                  _training_slices(loaded.provenance, training))
 
 
 def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: list[str],
@@ -569,7 +594,7 @@ def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: l
 
     if spec_path is None:
         raise InputError("no library: give a library file, or --spec FILE to start from an empty one")
-    spec = load_spec(spec_path)
+    spec = spec_path if isinstance(spec_path, Spec) else load_spec(spec_path)
     notes = ["no library: started from an empty one and learned online"]
     if not spec.fitted:
         spec = fit_spec(spec, logs, progress)
@@ -594,15 +619,25 @@ def _training_logs(provenance: dict, library_dir: str) -> list[str]:
 
 
 def _unchanged(entry: Any, library_dir: str) -> str | None:
-    from slearn.storage import file_record
+    from slearn.bags import log_record
 
     if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
         return None
     for path in dict.fromkeys([entry["path"], os.path.join(library_dir, entry["path"])]):
-        if os.path.isfile(path) and os.path.getsize(path) == entry.get("size_bytes") and \
-                file_record(path)["sha256"] == entry.get("sha256"):
+        if (os.path.isfile(path) or is_log_path(path)) and \
+                log_record(path)["size_bytes"] == entry.get("size_bytes") and \
+                log_record(path)["sha256"] == entry.get("sha256"):
             return path
     return None
+
+
+def _training_slices(provenance: dict, training: list[str]) -> dict[str, TimeSlice]:
+    """The slice of each training log the library learned (``slice`` in its provenance)."""
+    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
+    if not training or not isinstance(inputs, list):
+        return {}
+    return {path: slice_from_dict(entry.get("slice")) for path, entry in zip(training, inputs)
+            if isinstance(entry, dict) and entry.get("slice")}
 
 
 def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | None,
@@ -613,7 +648,8 @@ def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | N
     baselines = Baselines(setup.library)
     if progress:
         sys.stderr.write(f"replay: counting the baselines on {len(paths)} training log(s)\n")
-    for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False):
+    for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False,
+                               setup.training_slices if not baseline_logs else None):
         baselines.learn(setup.library.encode(episode))
     setup.facts["baseline_logs"] = paths
     return baselines, FIT_TRAINING

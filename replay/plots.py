@@ -1,21 +1,25 @@
 """Learning curves of a replay as PNG (matplotlib, Agg backend, no global pyplot state).
 
 One line per log; a single log with several observation channels gets one line per
-channel instead. With a single log, the baselines are drawn dashed beside the library.
+channel instead. Whenever there are several lines, a thick ``all`` line shows the
+accuracy over every event of the window. With a single log, the baselines are drawn
+dashed beside the library. Windows are sized to the data
+(:func:`slearn.replay.windows.data_window`), so each point averages enough events.
 """
 
 from __future__ import annotations
 
 import io
 import os
-from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from slearn.errors import InputError
+from slearn.files import write_atomic
 from slearn.replay.evaluate import Evaluation
+
+OVERALL = "all"
 
 
 def curves_png(evaluation: Evaluation, *, width_in: float = 8.0, height_in: float = 4.5) -> bytes:
@@ -24,7 +28,9 @@ def curves_png(evaluation: Evaluation, *, width_in: float = 8.0, height_in: floa
     FigureCanvasAgg(figure)
     axes = figure.add_subplot()
     for label, x, y, style in _lines(evaluation):
-        axes.plot(x, 100 * y, style, label=label, linewidth=1.4 if style == "-" else 1.0)
+        width = 2.6 if label == OVERALL else 1.4 if style == "-" else 1.0
+        axes.plot(x, 100 * y, style, label=label, linewidth=width,
+                  color="black" if label == OVERALL else None)
     axes.set_xlabel(f"step (windows of {evaluation.window} steps)")
     axes.set_ylabel("accuracy (%)")
     axes.set_ylim(-2, 102)
@@ -38,15 +44,12 @@ def curves_png(evaluation: Evaluation, *, width_in: float = 8.0, height_in: floa
 
 
 def write_curves(evaluation: Evaluation, path: str | os.PathLike) -> None:
-    """Write :func:`curves_png` to ``path``.
+    """Write :func:`curves_png` to ``path``, atomically (an existing file is replaced).
 
     Raises:
-        InputError: the file cannot be written.
+        InputError: the file cannot be written (an existing one is left as it was).
     """
-    try:
-        Path(path).write_bytes(curves_png(evaluation))
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
+    write_atomic(path, curves_png(evaluation), overwrite=True)
 
 
 def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, str]]:
@@ -61,6 +64,7 @@ def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, st
         if len(episodes) == 1 and len(channels) > 1:
             by_channel = curve.channel_accuracy()
             lines += [(c, x, by_channel[:, i], "-") for i, c in enumerate(channels)]
+            lines.append((OVERALL, x, curve.accuracy(), "-"))
         else:
             lines.append((name if len(episodes) > 1 else "library", x, curve.accuracy(), "-"))
         if len(episodes) == 1:
@@ -68,4 +72,20 @@ def _lines(evaluation: Evaluation) -> list[tuple[str, np.ndarray, np.ndarray, st
             lines.append((f"Markov baseline (<= {evaluation.baseline_order} steps)", x,
                           curve.accuracy("markov"), ":"))
             lines.append(("persistence baseline", x, curve.accuracy("persistence"), "-."))
+    if len(episodes) > 1:
+        lines.append(_overall(episodes))
     return lines
+
+
+def _overall(episodes) -> tuple[str, np.ndarray, np.ndarray, str]:
+    """Accuracy over all logs per window position (logs aligned at their first step)."""
+    n = max(len(e.curve.start) for e in episodes)
+    events, correct = np.zeros(n), np.zeros(n)
+    for e in episodes:
+        k = len(e.curve.start)
+        events[:k] += e.curve.events
+        correct[:k] += e.curve.correct
+    longest = max(episodes, key=lambda e: len(e.curve.start)).curve
+    with np.errstate(invalid="ignore", divide="ignore"):
+        accuracy = correct / np.where(events > 0, events, np.nan)
+    return OVERALL, longest.start + longest.window / 2, accuracy, "-"

@@ -7,11 +7,9 @@ import html
 import json
 import math
 import os
-from pathlib import Path
-
-from slearn.errors import InputError
+from slearn.files import write_atomic
 from slearn.replay.evaluate import Evaluation
-from slearn.replay.metrics import BASELINES, Tally
+from slearn.replay.metrics import BASELINES
 
 
 def _pct(x: float | None) -> str:
@@ -22,12 +20,26 @@ def _lift(points: float) -> str:
     return "-" if math.isnan(points) else f"{points:+.2f} pts"
 
 
-def _summary_rows(t: Tally) -> list[tuple[str, str, str, str]]:
-    """``(predictor, accuracy, abstained, lift of the library over it)`` rows."""
-    rows = [("library", _pct(t.accuracy), _pct(t.rate("abstained")), "")]
+def _span(interval: list[float] | None, scale: float = 100.0, signed: bool = False) -> str:
+    """``[a, b]`` of a 95 % interval (rates in percent, lifts in points)."""
+    if interval is None:
+        return "-"
+    fmt = "{:+.2f}" if signed else "{:.2f}"
+    a, b = (fmt.format(scale * x) for x in interval)
+    return f"[{a}, {b}]"
+
+
+def _summary_rows(e: Evaluation) -> list[tuple[str, str, str, str, str, str]]:
+    """``(predictor, accuracy, its 95 % interval, abstained, lift, the lift's interval)`` rows."""
+    t, h = e.totals, (e.honest.to_dict() if e.honest is not None else None)
+    rows = [("library", _pct(t.accuracy), _span(h and h["accuracy_interval"]),
+             _pct(t.rate("abstained")), "", "")]
     for name in BASELINES:
-        rows.append((f"{name} baseline", _pct(t.rate(name)), _pct(t.rate(f"{name}_abstained")),
-                     _lift(100 * (t.accuracy - t.rate(name)))))
+        b = h["baselines"][name] if h else None
+        accuracy, abstained = t.rate(name), t.rate(f"{name}_abstained")
+        lift = 100 * (t.accuracy - t.rate(name))
+        rows.append((f"{name} baseline", _pct(accuracy), _span(b and b["accuracy_interval"]),
+                     _pct(abstained), _lift(lift), _span(b and b["lift_interval_points"], 1.0, True)))
     return rows
 
 
@@ -35,16 +47,22 @@ def format_table(evaluation: Evaluation) -> str:
     """The replay as a plain-text report for a terminal."""
     e, t = evaluation, evaluation.totals
     library = (e.setup.get("library") or {}).get("path") or "(empty library)"
-    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} log(s), {t.events} predicted "
+    h = e.honest.to_dict() if e.honest is not None else None
+    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} episode(s), {t.events} predicted "
              f"observation events, top-{e.top_k}, windows of {e.window} steps", ""]
-    lines.append(f"  {'predictor':<20} {'accuracy':>10} {'abstained':>10} {'lift':>12}")
-    lines += [f"  {p:<20} {a:>10} {b:>10} {c:>12}" for p, a, b, c in _summary_rows(t)]
-    lines.append(f"  {'library top-' + str(e.top_k):<20} {_pct(t.rate('top_k')):>10}")
+    lines.append(f"  {'predictor':<22} {'accuracy':>10} {'95 % interval':>17} {'abstained':>10} "
+                 f"{'lift':>11} {'95 % interval':>17}")
+    lines += [f"  {p:<22} {a:>10} {i:>17} {b:>10} {c:>11} {d:>17}" for p, a, i, b, c, d in _summary_rows(e)]
+    lines.append(f"  {'library top-' + str(e.top_k):<22} {_pct(t.rate('top_k')):>10} "
+                 f"{_span(h and h['top_k_interval']):>17}")
     head = "".join(f" {name:>11}" for name in BASELINES)
-    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10}{head}"]
+    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'95 % interval':>17}{head}"]
+    by_channel = {c["channel"]: c for c in (h["channels"] if h else [])}
     for c in e.channels.to_list():
+        extra = by_channel.get(c["channel"], {})
         cells = "".join(f" {_pct(c[f'{name}_accuracy']):>11}" for name in BASELINES)
-        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10}{cells}")
+        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
+                     f"{_span(extra.get('accuracy_interval')):>17}{cells}")
     lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10}{head}"]
     for ep in e.episodes:
         mark = " (truncated)" if ep.truncated else ""
@@ -55,6 +73,8 @@ def format_table(evaluation: Evaluation) -> str:
         lines += ["", "  most frequent confusions (predicted -> actual):"]
         lines += [f"  {n:>9}  {p} -> {a}" for p, a, n in e.confusions]
     lines += [""] + [f"  note: {n}" for n in e.notes]
+    lines.append("  intervals: Wilson 95 % for accuracies, Newcombe's paired 95 % for lifts "
+                 "(steps of a log are not independent: read them as the least uncertainty)")
     lines.append(f"  {e.predictions:,} predictions, {e.predictions_per_s:,.0f} predictions/s "
                  f"(evaluation core)")
     return "\n".join(lines)
@@ -88,9 +108,10 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
              f"<p>{len(e.episodes)} log(s), {t.events} predicted observation events, "
              f"top-{e.top_k}, windows of {e.window} steps.</p>",
              "<h2>Accuracy</h2>",
-             _table(["predictor", "accuracy", "abstained", "lift of the library"],
-                    [list(r) for r in _summary_rows(t)]
-                    + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", ""]]),
+             _table(["predictor", "accuracy", "95 % interval", "abstained", "lift of the library",
+                     "95 % interval"],
+                    [list(r) for r in _summary_rows(e)]
+                    + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", "", "", ""]]),
              f'<img alt="learning curves" src="data:image/png;base64,{image}">',
              "<h2>Channels</h2>",
              _table(["channel", "events", "library", *BASELINES],
@@ -123,12 +144,9 @@ def _setup(evaluation: Evaluation) -> dict:
 
 
 def write_html(evaluation: Evaluation, path: str | os.PathLike) -> None:
-    """Write :func:`render_html` to ``path``.
+    """Write :func:`render_html` to ``path``, atomically (an existing file is replaced).
 
     Raises:
-        InputError: the file cannot be written.
+        InputError: the file cannot be written (an existing one is left as it was).
     """
-    try:
-        Path(path).write_text(render_html(evaluation), encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the report: {err.strerror or err}") from err
+    write_atomic(path, render_html(evaluation), overwrite=True)

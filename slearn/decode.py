@@ -4,7 +4,9 @@ Decoders: JSON (``jsonschema`` or schemaless, ``json.loads``), ROS 2 CDR
 (``mcap_ros2``), ROS 1 (``mcap_ros1``) and protobuf (``mcap_protobuf``). A decoder is
 built once per channel; a channel that has none keeps the reason. Whatever the decoder
 libraries print while building (the vendored ROS 2 parser prints on failure) is captured
-and never reaches stdout.
+and never reaches stdout, and the ROS 1 decoder's log line for strings that are not UTF-8
+("Characters replaced ...", logger ``rosout``) is silenced: the value keeps U+FFFD
+characters, and slearn's output stays one line per error.
 
 Field paths: ``pose.pose.position.x``, ``position[3]`` (negative indexes count from the
 end), ``position[name=r_shoulder_pan_joint]`` (ROS parallel arrays: the element of
@@ -19,6 +21,7 @@ import contextlib
 import dataclasses
 import io
 import json
+import logging
 import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
@@ -50,11 +53,20 @@ def _factory_for(message_encoding: str):
         from mcap_ros2.decoder import DecoderFactory
     elif message_encoding == "ros1":
         from mcap_ros1.decoder import DecoderFactory
+        _silence_rosout()
     elif message_encoding == "protobuf":
         from mcap_protobuf.decoder import DecoderFactory
     else:
         return None
     return DecoderFactory()
+
+
+def _silence_rosout() -> None:
+    """Keep genpy's per-message log lines (logger ``rosout``) off stderr."""
+    logger = logging.getLogger("rosout")
+    if not any(isinstance(h, logging.NullHandler) for h in logger.handlers):
+        logger.addHandler(logging.NullHandler())
+    logger.propagate = False
 
 
 def _first_line(text: str) -> str:
@@ -327,15 +339,16 @@ def _sequence_fields(obj: Any, name: str, seq: Any, path: str, depth: int,
             for i in range(min(len(seq), max_items)):
                 yield f"{path}[{i}]", _plain(seq[i])
     elif not isinstance(seq[0], (bytes, bytearray)):
-        yield from iter_scalar_fields(seq[0], f"{path}[0]", depth + 1, max_items)
+        for i in range(min(len(seq), max_items)):
+            yield from iter_scalar_fields(seq[i], f"{path}[{i}]", depth + 1, max_items)
 
 
 def iter_scalar_fields(obj: Any, prefix: str = "", depth: int = 0,
                        max_items: int = 4) -> Iterator[tuple[str, Any]]:
     """``(field path, value)`` for the scalar leaves of a decoded message.
 
-    Arrays of scalars show their first ``max_items`` elements, by name when a sibling
-    ``name`` array makes them parallel; arrays of messages show their first element.
+    Arrays show their first ``max_items`` elements: scalars by name when a sibling
+    ``name`` array makes them parallel, else by index; messages by index.
     """
     if depth > 8:
         return

@@ -29,3 +29,7 @@ class LibraryFormatError(InputError):
 
 class TruncatedLogWarning(UserWarning):
     """A log ended early; what could be salvaged was used (the CLI exits 3)."""
+
+
+class DataWarning(UserWarning):
+    """The data or the spec could make a result mean less than it seems (the CLI prints it)."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import matplotlib
 
@@ -11,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from slearn.demo import DemoResult  # noqa: E402
+from slearn.files import atomic_write  # noqa: E402
 
 # The paper's line styles: simple bold solid, hard stop dotted, scramble fine solid,
 # reversal fine dashed, random error dashed, random delay dash-dot.
@@ -26,8 +26,12 @@ LABELS = {"simple": "Simple system", "hardstop": "Hard nonlinearity", "scramble"
           "reversal": "Gain reversal", "error": "Random error", "delay": "Random delay"}
 
 
-def plot_figure2(result: DemoResult, path: str | os.PathLike) -> None:
-    """One line per condition (default scoring) plus the ceilings of the stochastic ones."""
+def plot_figure2(result: DemoResult, path: str | os.PathLike, *, overwrite: bool = False) -> None:
+    """One line per condition (default scoring) plus the ceilings of the stochastic ones.
+
+    Raises:
+        InputError: ``path`` exists without ``overwrite``, or cannot be written.
+    """
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
     for condition in result.conditions:
         curve = condition.accuracy["adaptive"]
@@ -46,7 +50,8 @@ def plot_figure2(result: DemoResult, path: str | os.PathLike) -> None:
     ax.set_title(f"S-learning on the rotary pointer (mean over {len(result.seeds)} seeds)")
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    tmp = Path(path).with_name(f".{Path(path).name}.tmp")
-    fig.savefig(tmp, format="png")
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_write(path, overwrite=overwrite) as out:
+            fig.savefig(out.file, format="png")
+    finally:
+        plt.close(fig)

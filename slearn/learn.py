@@ -1,6 +1,7 @@
 """The learning job: MCAP logs in, a saved pattern library out.
 
-Each log is one episode (episodes are never glued together). The spec is the one given,
+Each log is one episode, or several when it marks episode boundaries
+(:mod:`slearn.episodes`); episodes are never glued together. The spec is the one given,
 or the pointer's for pointer logs; quantile bins are fitted on the training logs before
 learning. ``resume`` goes on learning from a saved library with its own spec, vocabulary
 and parameters, so learning ``A`` then resuming on ``B`` writes the same bytes as learning
@@ -9,7 +10,9 @@ and parameters, so learning ``A`` then resuming on ``B`` writes the same bytes a
 Provenance: slearn version, every input log (path as given, size, sha256; a resumed
 library's inputs come first) and a time. The time is never the wall clock, so that the
 same inputs give the same file: it is ``SOURCE_DATE_EPOCH`` when set, else the newest
-modification time (whole seconds) among all inputs.
+modification time (whole seconds) among all inputs. A learned time slice
+(``--start``/``--end``/``--split``) is recorded with each input, so replay can count its
+baselines on exactly what the library learned.
 """
 
 from __future__ import annotations
@@ -17,19 +20,24 @@ from __future__ import annotations
 import glob
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Callable
 
 from slearn import __version__
-from slearn.errors import InputError, SpecError
 from slearn import literal
+from slearn.bags import is_log_path, log_record, open_log
+from slearn.errors import DataWarning, InputError, SpecError
+from slearn.files import check_output, regular_file
 from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.library_header import MAX_TIME_UNIX
 from slearn.literal import LiteralLibrary
-from slearn.mcap_read import McapLog, ReadReport
+from slearn.mcap_read import ReadReport
 from slearn.serialize import fit_spec, read_episodes
+from slearn.slicing import TimeSlice
 from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
-from slearn.storage import check_output, file_record, load_library, save_library
+from slearn.storage import load_library, save_library
 from slearn.vocabulary import Vocabulary
 
 SCORING_RULES = ("adaptive", "literal")
@@ -94,21 +102,22 @@ def expand_paths(patterns: list[str]) -> list[str]:
             raise InputError(f"{pattern}: no file matches")
         paths += matches
     for path in paths:
-        if not os.path.isfile(path):
-            raise InputError(f"{path}: no such log file")
+        if not (os.path.isdir(path) and is_log_path(path)):
+            regular_file(path, "log file (or rosbag2 folder with metadata.yaml)")
     return paths
 
 
-def log_topics(path: str) -> set[str]:
-    """Topics of a log: from its channel records, else from its first messages."""
-    with McapLog(path) as log:
+def log_topics(path: str) -> tuple[set[str], ReadReport]:
+    """Topics of a log: from its channel records, else from its first messages; and the
+    report of that read (where the log broke, if it did)."""
+    with open_log(path) as log:
         topics = {c.topic for c in log.channels.values()}
         if not topics:
             for i, message in enumerate(log.iter_messages()):
                 topics.add(message.topic)
                 if i >= _SNIFF_MESSAGES:
                     break
-    return topics
+        return topics, log.report
 
 
 def default_spec(path: str) -> Spec:
@@ -116,19 +125,23 @@ def default_spec(path: str) -> Spec:
 
     Raises:
         SpecError: the log is not a pointer log, so a spec is needed.
+        InputError: no channel could be read from a damaged log.
     """
-    topics = log_topics(path)
+    topics, report = log_topics(path)
     if {POINTER_COMMAND, POINTER_POSITION} <= topics:
         return pointer_spec()
+    if not topics and report.truncated:
+        raise InputError(f"nothing could be read: {report.describe()}")
     shown = ", ".join(sorted(topics)[:8]) or "none"
     raise SpecError(f"{path}: not a pointer log (topics: {shown}): pass --spec FILE or --channel "
                     f"(`slearn info {path} --suggest-spec spec.toml` writes a skeleton)")
 
 
 def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
-             max_patterns: int | None, scoring: str | None, progress: bool) -> _Job:
+             max_patterns: int | None, scoring: str | None, progress: bool,
+             window: TimeSlice | None = None) -> _Job:
     spec = spec if spec is not None else default_spec(paths[0])
-    spec = fit_spec(spec, paths, progress)
+    spec = fit_spec(spec, paths, progress, window)
     vocabulary = Vocabulary()
     scoring = scoring or DEFAULT_SCORING
     if scoring == "literal":
@@ -168,11 +181,12 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
                 spec: Spec | None = None, resume: str | os.PathLike | None = None,
                 max_length: int | None = None, max_patterns: int | None = None,
                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
-                on_episode: Callable[[LearnResult, str], None] | None = None) -> LearnResult:
-    """Learn each log as an episode and save the library to ``output`` (atomically).
+                on_episode: Callable[[LearnResult, str], None] | None = None,
+                window: TimeSlice | None = None) -> LearnResult:
+    """Learn the episodes of each log and save the library to ``output`` (atomically).
 
     Args:
-        paths: MCAP logs, learned in this order.
+        paths: logs (MCAP, rosbag2 folders, ``.db3``, ``.bag``), learned in this order.
         output: the library file (Parquet) to write.
         spec: the channel spec; ``None`` uses the pointer's for pointer logs.
         resume: a saved library to go on learning from (its spec, vocabulary, parameters).
@@ -183,14 +197,21 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
             paper's rule); fixed when resuming.
         overwrite: replace an existing ``output``.
         progress: show reading progress on stderr.
-        on_episode: called after each log is learned with the running result (episodes,
-            steps, events so far) and the log's path.
+        on_episode: called after each episode is learned with the running result
+            (episodes, steps, events so far) and the episode's name.
+        window: learn only this slice of each log's time (recorded in the provenance).
+
+    Warnings (:class:`~slearn.errors.DataWarning`): a spec without an action channel,
+    values outside an entry's ``range``.
 
     A truncated log is learned as far as it could be read; it is listed in the result's
-    ``truncated`` (and warned about), and the library is still saved.
+    ``truncated`` (and warned about), and the library is still saved, unless nothing at
+    all could be salvaged: then nothing is written. Cheap checks (the output, the resumed
+    library with its provenance, ``SOURCE_DATE_EPOCH``) come before any learning.
 
     Raises:
-        InputError: missing logs, an existing output without ``overwrite``, bad parameters.
+        InputError: missing logs, an existing output without ``overwrite``, an output that
+            is one of the inputs, bad parameters, nothing salvaged from damaged logs.
         SpecError: the spec does not fit a log, or no spec for a log that is not a pointer log.
         LibraryFormatError: ``resume`` is not a readable library.
     """
@@ -198,14 +219,21 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     paths = [os.fspath(p) for p in paths]
     if not paths:
         raise InputError("no logs to learn from")
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=paths + ([os.fspath(resume)] if resume else []))
     _check_scoring(scoring)
+    source_date_epoch()
     job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
-           else _new_job(paths, spec, max_length, max_patterns, scoring, progress))
+           else _new_job(paths, spec, max_length, max_patterns, scoring, progress, window))
+    for message in job.spec.warnings():
+        warnings.warn(DataWarning(message), stacklevel=2)
     result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
-    _learn_episodes(job, paths, result, progress, on_episode)
+    _learn_episodes(job, paths, result, progress, on_episode, window)
+    if not result.n_steps and result.truncated:
+        raise InputError(f"nothing could be salvaged, so nothing was written: "
+                         f"{result.truncated[0].describe()}")
     saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
-                         provenance=build_provenance(paths, job.provenance), overwrite=overwrite)
+                         provenance=build_provenance(paths, job.provenance, window),
+                         overwrite=overwrite)
     result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
     result.clock, result.forgotten = job.library.clock, job.library.forgotten
     result.n_symbols, result.seconds = len(job.vocabulary), time.perf_counter() - start
@@ -213,8 +241,9 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
 
 
 def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
-                    on_episode: Callable[[LearnResult, str], None] | None) -> None:
-    for path, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress):
+                    on_episode: Callable[[LearnResult, str], None] | None,
+                    window: TimeSlice | None) -> None:
+    for path, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress, window):
         job.library.learn(episode)
         result.n_episodes += 1
         result.n_steps += len(episode)
@@ -226,24 +255,42 @@ def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: 
             on_episode(result, path)
 
 
-def build_provenance(paths: list[str], previous: dict | None = None) -> dict:
+def build_provenance(paths: list[str], previous: dict | None = None,
+                     window: TimeSlice | None = None) -> dict:
     """Provenance of a library learned from ``paths`` (after ``previous``'s inputs, if any).
+
+    Each input is ``{path, size_bytes, sha256}``, plus ``slice`` when only a slice of its
+    time was learned.
 
     Raises:
         InputError: a log cannot be read, or ``SOURCE_DATE_EPOCH`` is not an integer.
     """
-    inputs = list(previous["inputs"]) if previous else []
-    inputs += [file_record(p) for p in paths]
-    epoch = os.environ.get("SOURCE_DATE_EPOCH")
-    if epoch is not None:
-        try:
-            stamp, source = int(epoch), "SOURCE_DATE_EPOCH"
-        except ValueError as err:
-            raise InputError(f"SOURCE_DATE_EPOCH must be an integer, not {epoch!r}") from err
-    else:
+    inputs = list(previous.get("inputs", [])) if previous else []
+    inputs += [{**log_record(p), **({"slice": window.to_dict()} if window else {})} for p in paths]
+    stamp, source = source_date_epoch(), "SOURCE_DATE_EPOCH"
+    if stamp is None:
         times = [int(os.stat(p).st_mtime) for p in paths]
         stamp = max(times + ([int(previous.get("time_unix", 0))] if previous else []))
-        source = "newest input mtime"
+        stamp, source = min(max(stamp, 0), MAX_TIME_UNIX), "newest input mtime"
     return {"slearn_version": __version__, "inputs": inputs, "time_unix": stamp,
             "time": datetime.fromtimestamp(stamp, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "time_source": source}
+
+
+def source_date_epoch() -> int | None:
+    """``SOURCE_DATE_EPOCH`` as whole seconds, ``None`` when unset.
+
+    Raises:
+        InputError: not an integer from 0 to 253402300799 (9999-12-31).
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if epoch is None:
+        return None
+    try:
+        stamp = int(epoch)
+    except ValueError:
+        stamp = -1
+    if not 0 <= stamp <= MAX_TIME_UNIX:
+        raise InputError(f"SOURCE_DATE_EPOCH must be an integer from 0 to {MAX_TIME_UNIX} "
+                         f"(9999-12-31), not {epoch[:40]!r}")
+    return stamp

@@ -46,6 +46,7 @@ DEFAULT_MAX_LENGTH = 6
 """Steps of history a context spans at most (an action and an observation each)."""
 
 MAX_MAX_LENGTH = 64
+MAX_PATTERNS = (1 << 31) - 1  # entries are int32-indexed
 FORGET_TO = 0.9
 JOINT = "*"
 """The view name of a library without a vocabulary: every observation channel at once."""
@@ -327,8 +328,9 @@ def check_parameters(max_length: int, max_patterns: int | None) -> None:
                              f"not {max_length!r}")
     if max_patterns is not None and (isinstance(max_patterns, bool)
                                      or not isinstance(max_patterns, (int, np.integer))
-                                     or not 16 <= max_patterns <= 2 ** 40):
-        raise ParameterError(f"max_patterns must be an integer in 16..2**40, not {max_patterns!r}")
+                                     or not 16 <= max_patterns <= MAX_PATTERNS):
+        raise ParameterError(f"max_patterns must be an integer in 16..{MAX_PATTERNS:,}, "
+                             f"not {max_patterns!r}")
 
 
 @kernel

@@ -20,22 +20,28 @@ How it reads, and why:
    with ties in file order, whatever the file layout.
 
 Memory holds the open blocks only (the chunks whose time ranges overlap the frontier,
-plus a small block index), so it does not grow with the length of the log. A chunk or
-record that cannot be read is skipped; what it cost is recorded in a :class:`ReadReport`
-and, at the end of the pass, a :class:`~slearn.errors.TruncatedLogWarning` names the
-file, the messages read and the byte offset where it broke.
+plus a small block index), so it does not grow with the length of the log, and it is
+bounded whatever the file says: a chunk is decompressed into exactly the size it declares
+(more or less data is a damaged chunk), and the open blocks together, records plus their
+message index, stay under ``SLEARN_MAX_CHUNK_MB`` (:func:`max_chunk_bytes_setting`). Zero
+bytes where a record should start are skipped whole (data section) or end the chunk, never
+walked record by record. A chunk or record that cannot be read, or would not fit, is
+skipped; what it cost is recorded in a :class:`ReadReport` and, at the end of the pass, a
+:class:`~slearn.errors.TruncatedLogWarning` names the file, the messages read and the byte
+offset where it broke.
 """
 
 from __future__ import annotations
 
 import heapq
 import os
+import stat
 import struct
 import warnings
 import zlib
 from dataclasses import dataclass, field
 from operator import itemgetter
-from typing import BinaryIO, Callable, Iterable, Iterator, NamedTuple
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
 
 from slearn.errors import InputError, TruncatedLogWarning
 
@@ -47,7 +53,10 @@ _OP_SCHEMA = 0x03
 _OP_CHANNEL = 0x04
 _OP_MESSAGE = 0x05
 _OP_CHUNK = 0x06
+_OP_ATTACHMENT = 0x09
+_OP_METADATA = 0x0C
 _OP_DATA_END = 0x0F
+_OP_INVALID = 0x00  # reserved: zero bytes where a record should be
 
 _RECORD_HEAD = struct.Struct("<BQ")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")
@@ -58,8 +67,13 @@ _CHUNK_TIMES = struct.Struct("<QQQI")
 
 _BLOCK_MESSAGES = 4096  # messages outside chunks are merged in blocks of this many
 _BLOCK_BYTES = 4 << 20
-_SMALL_RECORD = 1 << 24
-_MAX_CHUNK_BYTES = 1 << 32  # a larger declared chunk is corrupt, not data  # schema/channel/header records larger than this are corrupt
+_SMALL_RECORD = 1 << 24  # schema/channel/header records larger than this are corrupt
+_MESSAGE_BYTES = 256  # memory of one message's index entry in an opened block
+_ZERO_SCAN = 1 << 20
+
+MAX_CHUNK_ENV = "SLEARN_MAX_CHUNK_MB"
+DEFAULT_MAX_CHUNK_MB = 256
+_MAX_CHUNK_MB_LIMIT = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -93,14 +107,22 @@ class ChannelInfo:
         return self.schema.encoding if self.schema else ""
 
 
+UNKNOWN_OFFSET = -1
+"""The ``offset`` of a message (or ``broken_at`` of a break) whose byte position a reader
+cannot tell (bags read through ``rosbags``, rosbag2 folders of several files)."""
+
+
 class RawMessage(NamedTuple):
-    """One undecoded message; ``data`` is the payload as written."""
+    """One undecoded message; ``data`` is the payload as written, ``offset`` the byte
+    offset of its record in the file (of the chunk holding it, for chunked messages), or
+    :data:`UNKNOWN_OFFSET`."""
 
     channel: ChannelInfo
     log_time_ns: int
     publish_time_ns: int
     sequence: int
     data: bytes
+    offset: int = UNKNOWN_OFFSET
 
     @property
     def topic(self) -> str:
@@ -121,10 +143,15 @@ class ReadReport:
         path: the file.
         n_messages: messages yielded (after topic filtering).
         size_bytes: the file size.
-        broken_at: byte offset of the first record that could not be read, else ``None``.
+        broken_at: byte offset of the first record that could not be read
+            (:data:`UNKNOWN_OFFSET` when the reader cannot tell), else ``None``.
         reason: why it broke.
         n_skipped_chunks: chunks skipped as unreadable (corrupt) before the end.
         filtered: the pass read some topics only (``n_messages`` counts those).
+        undecodable: messages whose payload did not decode, skipped, per topic (filled in
+            by the reader that decodes, e.g. :mod:`slearn.serialize`).
+        first_undecodable: where the first of them is (byte offset, else its number
+            among the messages read) and its error.
     """
 
     path: str
@@ -134,25 +161,43 @@ class ReadReport:
     reason: str | None = None
     n_skipped_chunks: int = 0
     filtered: bool = False
+    undecodable: dict[str, int] = field(default_factory=dict)
+    first_undecodable: str | None = None
 
     @property
     def truncated(self) -> bool:
-        """True when part of the file could not be read."""
-        return self.broken_at is not None
+        """True when part of the file could not be read, or messages did not decode."""
+        return self.broken_at is not None or bool(self.undecodable)
 
     def note_break(self, offset: int, reason: str) -> None:
         """Record a break; the first one is kept as the one to report."""
         if self.broken_at is None:
             self.broken_at, self.reason = offset, reason
 
+    def note_undecodable(self, topic: str, offset: int, error: str) -> None:
+        """Count a message skipped because its payload does not decode."""
+        self.undecodable[topic] = self.undecodable.get(topic, 0) + 1
+        if self.first_undecodable is None:
+            where = f"byte {offset}" if offset >= 0 else f"message {self.n_messages} read"
+            self.first_undecodable = f"first at {where}: {error}"
+
     def describe(self) -> str:
         """A one-line summary naming the file, the messages read and the break."""
         if not self.truncated:
             return f"{self.path}: {self.n_messages} messages read"
-        skipped = f", {self.n_skipped_chunks} unreadable chunk(s) skipped" if self.n_skipped_chunks else ""
-        which = " of the selected topics" if self.filtered else ""
-        return (f"{self.path}: truncated or corrupt log: salvaged {self.n_messages} messages{which}; "
-                f"broke at byte {self.broken_at} of {self.size_bytes} ({self.reason}){skipped}")
+        parts = []
+        if self.broken_at is not None:
+            skipped = (f", {self.n_skipped_chunks} unreadable chunk(s) skipped"
+                       if self.n_skipped_chunks else "")
+            which = " of the selected topics" if self.filtered else ""
+            where = f" at byte {self.broken_at} of {self.size_bytes}" if self.broken_at >= 0 else ""
+            parts.append(f"truncated or corrupt log: salvaged {self.n_messages} messages{which}; "
+                         f"broke{where} ({self.reason}){skipped}")
+        if self.undecodable:
+            counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.undecodable.items()))
+            parts.append(f"skipped {sum(self.undecodable.values())} message(s) that do not decode "
+                         f"({counts}; {self.first_undecodable})")
+        return f"{self.path}: " + "; ".join(parts)
 
 
 @dataclass
@@ -163,6 +208,7 @@ class _Block:
     end: int
     min_time: int
     is_chunk: bool
+    max_time: int = 0
 
 
 @dataclass
@@ -175,6 +221,18 @@ class _Layout:
     schemas: dict[int, SchemaInfo] = field(default_factory=dict)
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
     raw_channels: dict[int, tuple] = field(default_factory=dict)
+    extras: list[tuple[int, int, int]] = field(default_factory=list)  # metadata, attachments
+
+
+@dataclass(frozen=True)
+class AttachmentInfo:
+    """An attachment record: times, name, media type and its bytes."""
+
+    log_time_ns: int
+    create_time_ns: int
+    name: str
+    media_type: str
+    data: bytes
 
 
 class McapLog:
@@ -182,12 +240,16 @@ class McapLog:
 
     Opening scans the record headers (see the module docstring); ``profile``,
     ``library`` and the channels defined outside chunks are then known. Channels defined
-    inside chunks appear in ``channels`` as the chunks are read.
+    inside chunks appear in ``channels`` as the chunks are read. ``max_chunk_bytes``
+    bounds the decompressed chunk data held at once (default: :func:`max_chunk_bytes_setting`).
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, max_chunk_bytes: int | None = None) -> None:
         self.path = os.fspath(path)
+        self.max_chunk_bytes = max_chunk_bytes or max_chunk_bytes_setting()
         try:
+            if not stat.S_ISREG(os.stat(self.path).st_mode):  # a FIFO would block open()
+                raise InputError(f"{self.path}: not a regular file: give an MCAP log file")
             self._file: BinaryIO = open(self.path, "rb")
         except OSError as err:
             raise InputError(f"{self.path}: cannot open: {err.strerror or err}") from err
@@ -223,6 +285,44 @@ class McapLog:
         """Channels known so far, by id."""
         return self._layout.channels
 
+    def time_range(self) -> tuple[int, int] | None:
+        """``(first, last)`` log time (ns) of the readable blocks, ``None`` without messages."""
+        blocks = self._layout.blocks
+        if not blocks:
+            return None
+        return min(b.min_time for b in blocks), max(max(b.max_time, b.min_time) for b in blocks)
+
+    def iter_metadata(self) -> Iterator[tuple[str, dict[str, str]]]:
+        """``(name, {key: value})`` of each metadata record, in file order.
+
+        A record that cannot be parsed, or is larger than ``max_chunk_bytes``, is skipped
+        and noted in ``report``, like a damaged chunk.
+        """
+        return self._iter_records(_OP_METADATA, _parse_metadata)
+
+    def iter_attachments(self) -> Iterator[AttachmentInfo]:
+        """Each attachment record, in file order (one in memory at a time); damaged or
+        oversized ones are skipped as in :meth:`iter_metadata`."""
+        return self._iter_records(_OP_ATTACHMENT, _parse_attachment)
+
+    def _iter_records(self, op: int, parse: Callable[[bytes], Any]) -> Iterator[Any]:
+        for kind, pos, end in self._layout.extras:
+            if kind != op:
+                continue
+            size = end - pos - 9
+            if size > self.max_chunk_bytes:
+                self.report.note_break(pos, f"record (opcode 0x{op:02x}) of {size:,} bytes skipped: "
+                                            f"over the {self.max_chunk_bytes / 2**20:g} MiB limit; "
+                                            f"raise {MAX_CHUNK_ENV} to read it")
+                continue
+            self._file.seek(pos + 9)
+            try:
+                record = parse(self._file.read(size))
+            except struct.error as err:
+                self.report.note_break(pos, f"unreadable record (opcode 0x{op:02x}): {err}")
+                continue
+            yield record
+
     def iter_messages(self, topics: Iterable[str] | None = None,
                       on_progress: Callable[[int, int], None] | None = None) -> Iterator[RawMessage]:
         """Yield raw messages in log-time order, ties in file order.
@@ -235,10 +335,33 @@ class McapLog:
         """
         wanted = None if topics is None else frozenset(topics)
         self.report.filtered = wanted is not None
-        merge = _Merge(self._file, self._layout, self.report, wanted, on_progress)
+        merge = _Merge(self._file, self._layout, self.report, wanted, on_progress, self.max_chunk_bytes)
         for message in merge:
             self.report.n_messages += 1
             yield message
+
+
+def max_chunk_bytes_setting() -> int:
+    """The most decompressed chunk data held at once: ``SLEARN_MAX_CHUNK_MB`` MiB (default 256).
+
+    A chunk that declares more, or that would take the chunks open at once (chunks
+    overlapping in log time are merged together) over it, is skipped and reported like a
+    damaged chunk.
+
+    Raises:
+        InputError: the variable is not a whole number of MiB from 1 to 2^20.
+    """
+    text = os.environ.get(MAX_CHUNK_ENV)
+    if text is None:
+        return DEFAULT_MAX_CHUNK_MB << 20
+    try:
+        mib = int(text)
+    except ValueError:
+        mib = 0
+    if not 1 <= mib <= _MAX_CHUNK_MB_LIMIT:
+        raise InputError(f"{MAX_CHUNK_ENV}={text[:40]!r}: give a whole number of MiB from 1 to "
+                         f"{_MAX_CHUNK_MB_LIMIT:,} (default {DEFAULT_MAX_CHUNK_MB})")
+    return mib << 20
 
 
 def iter_messages(path: str | os.PathLike, *, topics: Iterable[str] | None = None,
@@ -274,19 +397,20 @@ class _BlockBuilder:
     def __init__(self, blocks: list[_Block]) -> None:
         self.blocks = blocks
         self.start = self.end = self.count = 0
-        self.min_time = 0
+        self.min_time = self.max_time = 0
 
     def add(self, offset: int, end: int, log_time: int) -> None:
         if self.count and (self.count >= _BLOCK_MESSAGES or end - self.start > _BLOCK_BYTES):
             self.close()
         if not self.count:
-            self.start, self.min_time = offset, log_time
+            self.start, self.min_time, self.max_time = offset, log_time, log_time
         self.min_time = min(self.min_time, log_time)
+        self.max_time = max(self.max_time, log_time)
         self.end, self.count = end, self.count + 1
 
     def close(self) -> None:
         if self.count:
-            self.blocks.append(_Block(self.start, self.end, self.min_time, False))
+            self.blocks.append(_Block(self.start, self.end, self.min_time, False, self.max_time))
         self.count = 0
 
 
@@ -305,6 +429,12 @@ def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
                               else "file ends inside a record header")
             break
         op, length = _RECORD_HEAD.unpack(head)
+        if op == _OP_INVALID:
+            builder.close()  # a block never spans the zeros
+            pos = _skip_zeros(f, pos, size, report)
+            if pos is None:
+                break
+            continue
         end = pos + 9 + length
         if end > size:
             report.note_break(pos, f"record (opcode 0x{op:02x}) of {length} bytes runs past the end")
@@ -325,6 +455,28 @@ def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
     return layout
 
 
+def _skip_zeros(f: BinaryIO, pos: int, size: int, report: ReadReport) -> int | None:
+    """Skip a run of zero bytes at ``pos`` (a zeroed region, never walked record by record).
+
+    Returns where the records go on, or ``None`` to stop: the run reaches the end of the
+    file, or the bytes at ``pos`` are an invalid record that is not zeros.
+    """
+    f.seek(pos)
+    start = pos
+    while pos < size:
+        block = f.read(min(_ZERO_SCAN, size - pos))
+        rest = block.lstrip(b"\0")
+        pos += len(block) - len(rest)
+        if rest:
+            break
+    if pos - start < 9:
+        report.note_break(start, "invalid record (opcode 0x00)")
+        return None
+    report.note_break(start, f"{pos - start} zero bytes instead of records")
+    f.seek(pos)
+    return pos if pos < size else None
+
+
 def _read_message_time(f: BinaryIO, length: int) -> int:
     if length < _MESSAGE_HEAD.size:
         return 0
@@ -335,8 +487,10 @@ def _scan_other(f: BinaryIO, op: int, length: int, pos: int, end: int, layout: _
                 report: ReadReport) -> None:
     """Handle a non-message record of the scan (only its start has been read)."""
     if op == _OP_CHUNK:
-        start_time = _U64.unpack(f.read(8))[0] if length >= 8 else 0
-        layout.blocks.append(_Block(pos, end, start_time, True))
+        start_time, end_time = struct.unpack("<QQ", f.read(16)) if length >= 16 else (0, 0)
+        layout.blocks.append(_Block(pos, end, start_time, True, end_time))
+    elif op in (_OP_METADATA, _OP_ATTACHMENT):
+        layout.extras.append((op, pos, end))
     elif op in (_OP_SCHEMA, _OP_CHANNEL, _OP_HEADER) and length < _SMALL_RECORD:
         try:
             _register_record(op, f.read(length), 0, length, layout)
@@ -385,6 +539,19 @@ def _read_map(buf: bytes, pos: int) -> dict[str, str]:
     return out
 
 
+def _parse_metadata(buf: bytes) -> tuple[str, dict[str, str]]:
+    name, at = _read_str(buf, 0)
+    return name, _read_map(buf, at)
+
+
+def _parse_attachment(buf: bytes) -> AttachmentInfo:
+    log_time, create_time = struct.unpack_from("<QQ", buf, 0)
+    name, at = _read_str(buf, 16)
+    media_type, at = _read_str(buf, at)
+    (n,) = _U64.unpack_from(buf, at)
+    return AttachmentInfo(log_time, create_time, name, media_type, bytes(buf[at + 8:at + 8 + n]))
+
+
 def _resolve_channels(layout: _Layout) -> None:
     """Turn raw channel records into :class:`ChannelInfo` once their schema is known."""
     for cid, (sid, topic, encoding, metadata) in list(layout.raw_channels.items()):
@@ -395,20 +562,69 @@ def _resolve_channels(layout: _Layout) -> None:
 
 # --- pass 2: blocks and merge ---------------------------------------------------------
 
-def _decompress(compression: str, data: bytes, uncompressed_size: int) -> bytes:
+class _TooLarge(ValueError):
+    """A block would not fit in the memory limit (see :func:`max_chunk_bytes_setting`)."""
+
+
+def decompress_exactly(compression: str, data: bytes, size: int) -> bytes:
+    """Decompress a chunk's records into exactly ``size`` bytes, never more.
+
+    ``compression`` is MCAP's (``""``, ``zstd``, ``lz4``), or ``bz2`` (ROS 1 bag chunks).
+
+    Raises:
+        ValueError: the data holds more or fewer bytes than declared, or does not decompress.
+    """
     if compression == "":
-        return data
-    if compression == "zstd":
-        import zstandard
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=uncompressed_size)
-    if compression == "lz4":
-        import lz4.frame
-        return lz4.frame.decompress(data)
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+        out = data
+    elif compression == "zstd":
+        out = _zstd(data, size)
+    elif compression == "lz4":
+        out = _lz4(data, size)
+    elif compression == "bz2":
+        import bz2
+
+        out = _at_most(bz2.BZ2Decompressor(), data, size, "bz2")
+    else:
+        raise ValueError(f"unsupported chunk compression {compression!r}")
+    if len(out) != size:
+        raise ValueError(f"chunk records are {len(out)} bytes, the chunk declares {size}")
+    return out
 
 
-def _chunk_records(f: BinaryIO, block: _Block) -> bytes:
-    """Read, decompress and check one chunk; raise ``ValueError`` when it is unreadable."""
+def _zstd(data: bytes, size: int) -> bytes:
+    import zstandard
+
+    declared = zstandard.frame_content_size(data)
+    if declared not in (-1, size):  # -1: the frame does not say
+        raise ValueError(f"zstd frame holds {declared} bytes, the chunk declares {size}")
+    # With a content size in the frame, zstandard allocates exactly that; without one, at
+    # most max_output_size, and more output is an error: either way never above ``size``.
+    return zstandard.ZstdDecompressor().decompress(data, max_output_size=max(size, 1))
+
+
+def _lz4(data: bytes, size: int) -> bytes:
+    import lz4.frame
+
+    declared = lz4.frame.get_frame_info(data)["content_size"]
+    if declared not in (0, size):  # 0: the frame does not say
+        raise ValueError(f"lz4 frame holds {declared} bytes, the chunk declares {size}")
+    return _at_most(lz4.frame.LZ4FrameDecompressor(), data, size, "lz4")
+
+
+def _at_most(decompressor, data: bytes, size: int, what: str) -> bytes:
+    """Run a streaming ``decompressor`` on ``data`` for at most ``size`` bytes of output."""
+    out = decompressor.decompress(data, max_length=size + 1)  # one byte more tells "too much"
+    if len(out) == size and not decompressor.eof:
+        raise ValueError(f"{what} data holds more than the {size} bytes the chunk declares")
+    return out
+
+
+def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
+    """Read, decompress and check one chunk; raise ``ValueError`` when it is unreadable.
+
+    ``room`` is the memory still free under the limit: a chunk that declares more is not
+    decompressed (:class:`_TooLarge`).
+    """
     f.seek(block.offset + 9)
     buf = f.read(block.end - block.offset - 9)
     try:
@@ -419,10 +635,12 @@ def _chunk_records(f: BinaryIO, block: _Block) -> bytes:
         raise ValueError(f"chunk header unreadable: {err}") from err
     if pos + 8 + n > len(buf):
         raise ValueError("chunk records run past the chunk")
-    if uncompressed_size > _MAX_CHUNK_BYTES:
-        raise ValueError(f"implausible chunk size {uncompressed_size}")
+    if uncompressed_size > room:
+        raise _TooLarge(f"chunk declares {uncompressed_size:,} bytes uncompressed")
     try:
-        data = _decompress(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
+        data = decompress_exactly(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
+    except ValueError:
+        raise  # a size mismatch, said as it is
     except Exception as err:  # zstd/lz4 raise their own error types
         raise ValueError(f"chunk cannot be decompressed: {err}") from err
     if crc and zlib.crc32(data) != crc:
@@ -430,74 +648,129 @@ def _chunk_records(f: BinaryIO, block: _Block) -> bytes:
     return data
 
 
-def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None) -> list[tuple]:
-    """Messages of a run of records, as ``(log_time, publish_time, sequence, channel_id, data)``."""
+def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
+                    room: int) -> list[tuple]:
+    """Messages of a run of records as ``(log_time, publish_time, sequence, channel_id,
+    start, end)``, ``buf[start:end]`` being the payload; schemas and channels are registered.
+
+    Raises:
+        ValueError: a record is cut or made of zero bytes (a damaged block).
+        _TooLarge: holding the messages would take more than ``room`` bytes.
+    """
     out: list[tuple] = []
-    pos, end = 0, len(buf)
+    pos, end, n_records = 0, len(buf), 0
     channels = layout.channels
     while pos + 9 <= end:
         op, length = _RECORD_HEAD.unpack_from(buf, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > end:
             raise ValueError(f"record at +{pos} runs past the end of its block")
+        n_records += 1
+        if n_records % _BLOCK_MESSAGES == 0:  # every record counts: floods of tiny ones stop early
+            check_room(end, n_records, room)
         if op == _OP_MESSAGE:
             cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
             channel = channels.get(cid)
             if wanted is None or channel is None or channel.topic in wanted:
-                out.append((log_time, publish_time, seq, cid, buf[body + 22:nxt]))
+                out.append((log_time, publish_time, seq, cid, body + 22, nxt))
         elif op in (_OP_SCHEMA, _OP_CHANNEL):
             _register_record(op, buf, body, nxt, layout)
             _resolve_channels(layout)
+        elif op == _OP_INVALID:  # zero bytes are never walked record by record
+            raise ValueError(f"zero bytes instead of a record at +{pos}")
         pos = nxt
+    check_room(end, len(out), room)
     out.sort(key=itemgetter(0))  # stable: ties keep file order
     return out
 
 
+def block_cost(n_bytes: int, n_records: int) -> int:
+    """Memory an opened block of ``n_bytes`` with ``n_records`` records is counted for."""
+    return n_bytes + _MESSAGE_BYTES * n_records
+
+
+def check_room(n_bytes: int, n_records: int, room: int) -> None:
+    """Refuse a block of ``n_bytes`` holding ``n_records`` records that would not fit in ``room``
+    bytes of memory (its bytes plus an index entry per record).
+
+    Raises:
+        ValueError: it would not fit (the block is skipped, like a damaged one).
+    """
+    if block_cost(n_bytes, n_records) > room:
+        raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_records:,} records")
+
+
+class _Opened(NamedTuple):
+    """An opened block: its sorted messages, the bytes they point into, its memory."""
+
+    messages: list[tuple]
+    buf: bytes
+    cost: int
+
+
 class _Merge:
-    """Pass 2: k-way merge of blocks by ``(log_time, block index, index in block)``."""
+    """Pass 2: k-way merge of blocks by ``(log_time, block index, index in block)``.
+
+    Opened blocks stay in memory until their last message is yielded; together they may
+    take at most ``limit`` bytes (decompressed records plus the message index). A block
+    that would exceed it is skipped and reported (raise the limit to read it).
+    """
 
     def __init__(self, f: BinaryIO, layout: _Layout, report: ReadReport,
-                 wanted: frozenset[str] | None, on_progress) -> None:
+                 wanted: frozenset[str] | None, on_progress, limit: int) -> None:
         self.f, self.layout, self.report, self.wanted = f, layout, report, wanted
-        self.on_progress = on_progress
+        self.on_progress, self.limit = on_progress, limit
         self.order = sorted(range(len(layout.blocks)), key=lambda i: (layout.blocks[i].min_time, i))
-        self.cache: dict[int, list[tuple]] = {}
         self.opened = [False] * len(layout.blocks)
-        self.harvested_upto = 0  # blocks before this index are opened or cached
+        self.harvested_upto = 0  # blocks before this index are opened or harvested
         self.bytes_read = 0
+        self.open_bytes = 0
 
-    def _parse(self, i: int) -> list[tuple]:
+    def _parse(self, i: int) -> _Opened:
         block = self.layout.blocks[i]
+        room = self.limit - self.open_bytes
         try:
             if block.is_chunk:
-                buf = _chunk_records(self.f, block)
+                buf = _chunk_records(self.f, block, room)
             else:
                 self.f.seek(block.offset)
                 buf = self.f.read(block.end - block.offset)
-            messages = _parse_messages(buf, self.layout, self.wanted)
+            messages = _parse_messages(buf, self.layout, self.wanted, room)
+        except _TooLarge as err:
+            held = f" with {self.open_bytes / 2**20:.1f} MiB held by chunks overlapping in time" \
+                if self.open_bytes else ""
+            self._skip(block, f"{err}: over the {self.limit / 2**20:g} MiB of chunk data read at "
+                              f"once{held}; raise {MAX_CHUNK_ENV} to read it")
+            buf, messages = b"", []
         except (ValueError, struct.error) as err:
-            self.report.note_break(block.offset, str(err))
-            self.report.n_skipped_chunks += block.is_chunk
-            messages = []
+            self._skip(block, str(err))
+            buf, messages = b"", []
         self.bytes_read += block.end - block.offset
         if self.on_progress is not None:
             self.on_progress(self.bytes_read, self.report.size_bytes)
-        return messages
+        return _Opened(messages, buf, block_cost(len(buf), len(messages)))
 
-    def _open(self, i: int) -> list[tuple]:
+    def _skip(self, block: _Block, reason: str) -> None:
+        where = "chunk" if block.is_chunk else "records"
+        self.report.note_break(block.offset, f"{where} skipped: {reason}")
+        self.report.n_skipped_chunks += block.is_chunk
+
+    def _open(self, i: int) -> _Opened:
         self.opened[i] = True
-        messages = self.cache.pop(i, None)
-        if messages is None:
-            messages = self._parse(i)
-        if any(m[3] not in self.layout.channels for m in messages):
+        opened = self._parse(i)
+        if any(m[3] not in self.layout.channels for m in opened.messages):
             self._harvest_before(i)
-        return messages
+        return opened
 
     def _harvest_before(self, i: int) -> None:
-        """Parse unopened blocks before ``i`` in file order: they may define its channels."""
+        """Read unopened blocks before ``i`` in file order for the channels they define.
+
+        Their messages are not kept (the blocks are read again when their turn comes),
+        so harvesting never holds more than one extra block.
+        """
         for j in range(self.harvested_upto, i):
-            if not self.opened[j] and j not in self.cache:
-                self.cache[j] = self._parse(j)
+            if not self.opened[j]:
+                self._parse(j)
         self.harvested_upto = max(self.harvested_upto, i)
 
     def __iter__(self) -> Iterator[RawMessage]:
@@ -507,21 +780,25 @@ class _Merge:
         while True:
             while k < len(self.order) and (not heap or blocks[self.order[k]].min_time <= heap[0][0]):
                 i = self.order[k]
-                messages = self._open(i)
-                if messages:
-                    heapq.heappush(heap, (messages[0][0], i, 0, messages))
+                opened = self._open(i)
+                if opened.messages:
+                    self.open_bytes += opened.cost
+                    heapq.heappush(heap, (opened.messages[0][0], i, 0, opened))
                 k += 1
             if not heap:
                 return
-            _, i, j, messages = heap[0]
-            log_time, publish_time, seq, cid, data = messages[j]
-            if j + 1 < len(messages):
-                heapq.heapreplace(heap, (messages[j + 1][0], i, j + 1, messages))
+            _, i, j, opened = heap[0]
+            log_time, publish_time, seq, cid, start, end = opened.messages[j]
+            if j + 1 < len(opened.messages):
+                heapq.heapreplace(heap, (opened.messages[j + 1][0], i, j + 1, opened))
             else:
                 heapq.heappop(heap)
+                self.open_bytes -= opened.cost
             channel = channels.get(cid)
+            block = blocks[i]
             if channel is None:
-                self.report.note_break(blocks[i].offset, f"message on undefined channel id {cid}")
+                self.report.note_break(block.offset, f"message on undefined channel id {cid}")
                 continue
             if self.wanted is None or channel.topic in self.wanted:
-                yield RawMessage(channel, log_time, publish_time, seq, data)
+                offset = block.offset if block.is_chunk else block.offset + start - 31
+                yield RawMessage(channel, log_time, publish_time, seq, opened.buf[start:end], offset)

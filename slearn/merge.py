@@ -36,8 +36,8 @@ from slearn.library import FORGET_TO, PatternLibrary
 from slearn.literal import LiteralLibrary
 from slearn.mixer import Mixer
 from slearn.mixer import new_mixer
-from slearn.storage import (LoadedLibrary, SaveSummary, check_output, file_record, load_library,
-                            save_library)
+from slearn.files import check_output
+from slearn.storage import LoadedLibrary, SaveSummary, file_record, load_library, save_library
 from slearn.tokens import TokenTable
 from slearn.vocabulary import Vocabulary
 
@@ -72,12 +72,13 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     library files themselves (path, size, sha256).
 
     Raises:
-        InputError: fewer than two libraries, or ``output`` exists without ``overwrite``.
+        InputError: fewer than two libraries, ``output`` exists without ``overwrite``, or
+            ``output`` is one of the libraries (refused even with ``overwrite``).
         LibraryFormatError, SpecError: as :func:`load_library` and :func:`merge_libraries`.
     """
     if len(paths) < 2:
         raise InputError("merge needs at least two libraries")
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=paths)
     merged = load_library(paths[0])
     for path in paths[1:]:
         merged = merge_libraries(merged, load_library(path))

@@ -2,10 +2,12 @@
 
 A spec is a TOML file::
 
-    mode = "change"        # "message": every message is an event
-                           # "change": an event only when the channel's symbol changes
+    mode = "message"       # default: every message of an entry is an event
+                           # "change": an event only when the entry's symbol changes
                            # "tick": a fixed-rate tick with sample-and-hold (set tick_ms)
     # tick_ms = 100        # or tick_ns = 100_000_000
+    # phase_ms = 50        # tick mode: sample the observations this long after the
+                           # commands of each tick (0 < phase <= tick; default: one tick)
 
     [[channel]]
     topic = "/joint_states"
@@ -14,8 +16,11 @@ A spec is a TOML file::
     name = "r_shoulder_pan"  # optional; default: the topic, or "topic:field" when a
                              # topic has several entries
     range = [-2.0, 2.0]    # numeric: `count` uniform bins over the range (values
-    count = 8              # outside fall in the end bins)
+    count = 8              # outside fall in the end bins and are counted and warned
+    # clip = true          # about, unless clip = true accepts them silently)
     # wrap = true          # angles: values wrap into the range before binning
+    # unit = "rad"         # how bins are labelled: "rad" and "deg" show degrees
+    # mode = "change"      # this entry only: an event when its symbol changes
 
     [[channel]]
     topic = "/pointer/command"
@@ -23,16 +28,29 @@ A spec is a TOML file::
     role = "action"
     values = ["L", "R"]    # categorical with declared values (fixes symbol order)
 
+Limits (refused with a one-line error naming the entry and the key): at most
+:data:`MAX_SYMBOLS` (10^6) symbols per channel (``count``, ``quantiles``, ``edges``,
+``values``, and the values a log brings) unless the entry raises it with ``max_symbols =
+N`` (up to 2^31 - 1); ``tick_ms`` from 0.000001 (1 ns) to 86,400,000 (a day); ``width`` and
+``origin``, ``range`` and ``edges`` finite (``width`` from 1e-300 to 1e300, ``range`` low
+< high with a finite span, ``edges`` strictly increasing); ``values`` distinct strings,
+integers, finite numbers or booleans; at most :data:`MAX_CHANNELS` entries.
+
 Symbolizers (one per entry; no binning key means categorical, values as they are):
 ``values = [...]`` (categorical, declared order first), ``width`` + ``origin`` (uniform
 bins, unbounded, the symbol is ``floor((x - origin) / width)``), ``range`` + ``count``
-(optionally ``wrap``), ``edges = [...]`` (bin ``k`` holds ``edges[k-1] <= x < edges[k]``),
-``quantiles = n`` (``n`` bins with edges fitted on training logs, see
-:func:`slearn.serialize.fit_spec`). Bin symbols are bin indices (``int``).
+(optionally ``wrap``, ``clip``), ``edges = [...]`` (bin ``k`` holds
+``edges[k-1] <= x < edges[k]``), ``quantiles = n`` (``n`` bins with edges fitted on
+training logs, see :func:`slearn.serialize.fit_spec`). Bin symbols are bin indices
+(``int``); :meth:`Spec.value_label` shows them as value ranges (``[50°, 60°)``).
+
+Modes: the file's ``mode`` is the default of every entry; an entry's own ``mode``
+(``"message"`` or ``"change"``) overrides it. ``"tick"`` is for the whole file only.
 
 The CLI shorthand ``TOPIC:FIELD:ROLE[:OPTIONS]`` (:func:`parse_channel_option`) makes
-one entry; OPTIONS are ``key=value`` pairs separated by commas, list items by ``;``:
-``/joint_states:position[name=r_wrist_roll_joint]:observation:range=-3;3,count=6``.
+one entry; OPTIONS are ``key=value`` pairs separated by commas; a list is written in
+brackets, ``[a,b]`` (or its items separated by ``;``):
+``/joint_states:position[name=r_wrist_roll_joint]:observation:range=[-3,3],count=6``.
 
 :meth:`Spec.to_dict` / :meth:`Spec.from_dict` give plain JSON-able data, fitted edges
 included, so a saved library re-bins held-out logs identically.
@@ -43,6 +61,7 @@ from __future__ import annotations
 import bisect
 import math
 import tomllib
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
@@ -52,11 +71,21 @@ from slearn.errors import SpecError
 from slearn.vocabulary import ACTION, OBSERVATION, ROLES
 
 MODES = ("message", "change", "tick")
-DEFAULT_MODE = "change"
+CHANNEL_MODES = ("message", "change")
+DEFAULT_MODE = "message"
 
-_BIN_KEYS = ("width", "origin", "range", "count", "edges", "quantiles", "wrap")
-_ENTRY_KEYS = ("topic", "field", "role", "name", "values") + _BIN_KEYS
-_SPEC_KEYS = ("mode", "tick_ms", "tick_ns", "channel")
+_BIN_KEYS = ("width", "origin", "range", "count", "edges", "quantiles", "wrap", "clip", "unit")
+_ENTRY_KEYS = ("topic", "field", "role", "name", "values", "mode", "max_symbols") + _BIN_KEYS
+_SPEC_KEYS = ("mode", "tick_ms", "tick_ns", "phase_ms", "phase_ns", "channel")
+_DEGREE_UNITS = {"rad": 180.0 / math.pi, "deg": 1.0}
+
+MAX_SYMBOLS = 1_000_000        # symbols per channel unless an entry raises it (max_symbols)
+MAX_SYMBOLS_LIMIT = (1 << 31) - 1  # symbols are int32
+MAX_CHANNELS = 10_000
+TICK_NS_RANGE = (1, 86_400 * 1_000_000_000)  # 1 ns to a day
+WIDTH_RANGE = (1e-300, 1e300)
+MAX_ORIGIN = 1e300
+_MAX_BIN_INDEX = 1 << 53  # beyond it a bin index is not exact in a float: the value is skipped
 
 
 @dataclass(frozen=True)
@@ -71,6 +100,8 @@ class Categorical:
             return tuple(x)
         if isinstance(x, (bytes, bytearray)) or x is None:
             return None
+        if isinstance(x, float) and math.isnan(x):
+            return None  # NaN never equals itself: every reading would be a new symbol
         return x
 
     def declared_values(self) -> list | None:
@@ -98,6 +129,8 @@ class Bins:
     edges: tuple[float, ...] | None = None
     quantiles: int | None = None
     wrap: bool = False
+    clip: bool = False
+    unit: str | None = None
 
     @property
     def fitted(self) -> bool:
@@ -116,10 +149,11 @@ class Bins:
         return None if self.width is not None else len(self.cuts()) + 1
 
     def symbol_value(self, x: Any) -> int | None:
-        """The bin index of ``x``; ``None`` for non-numbers, NaN and infinities."""
+        """The bin index of ``x``; ``None`` for non-numbers, NaN, infinities, integers too
+        large for a float, and ``width`` bins beyond +-2^53."""
         try:
             x = float(x)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             return None
         if not math.isfinite(x):
             return None
@@ -127,7 +161,8 @@ class Bins:
             lo, hi = self.range
             x = lo + (x - lo) % (hi - lo)
         if self.width is not None:
-            return math.floor((x - self.origin) / self.width)
+            q = (x - self.origin) / self.width
+            return math.floor(q) if abs(q) < _MAX_BIN_INDEX else None
         return bisect.bisect_right(self._cuts, x)
 
     def __post_init__(self) -> None:
@@ -138,15 +173,37 @@ class Bins:
         n = self.n_bins()
         return list(range(n)) if n is not None and self.fitted else None
 
-    def label(self, k: int) -> str:
-        """``[a, b)`` text of bin ``k``."""
+    def outside(self, x: Any) -> bool:
+        """Whether ``x`` falls outside ``range`` and would be binned into an end bin.
+
+        Only ``range`` bins (not wrapped) have bounds; ``clip = true`` accepts such values.
+        """
+        if self.range is None or self.quantiles is not None or self.wrap or self.clip:
+            return False
+        try:
+            x = float(x)
+        except (TypeError, ValueError, OverflowError):
+            return False  # not binned at all (see symbol_value)
+        return math.isfinite(x) and (x < self.range[0] or x > self.range[1])
+
+    def bounds(self, k: int) -> tuple[float, float]:
+        """The values bin ``k`` stands for, ``(low, high)``; infinite for open end bins."""
         if self.width is not None:
             a = self.origin + k * self.width
-            return f"[{a:g}, {a + self.width:g})"
+            return a, a + self.width
         cuts = self.cuts()
-        a = cuts[k - 1] if k > 0 else -math.inf
-        b = cuts[k] if k < len(cuts) else math.inf
-        return f"[{a:g}, {b:g})"
+        ends = self.range if self.range is not None and self.quantiles is None else (-math.inf, math.inf)
+        return (cuts[k - 1] if k > 0 else ends[0]), (cuts[k] if k < len(cuts) else ends[1])
+
+    def label(self, k: int) -> str:
+        """``[a, b)`` text of bin ``k``, in degrees for angles (``unit = "rad"`` or ``"deg"``)."""
+        a, b = self.bounds(k)
+        scale = _DEGREE_UNITS.get(self.unit or "", 1.0)
+        width = (b - a) * scale if math.isfinite(b - a) else None
+        text = f"[{_number_text(a * scale, width)}, {_number_text(b * scale, width)})"
+        if self.unit in _DEGREE_UNITS:
+            return text.replace(",", "°,").replace(")", "°)").replace("inf°", "inf")
+        return f"{text} {self.unit}" if self.unit else text
 
     def to_dict(self) -> dict:
         """Plain JSON-able description, fitted edges included."""
@@ -161,7 +218,21 @@ class Bins:
             out["edges"] = list(self.edges)
         if self.wrap:
             out["wrap"] = True
+        if self.clip:
+            out["clip"] = True
+        if self.unit:
+            out["unit"] = self.unit
         return out
+
+
+def _number_text(x: float, width: float | None) -> str:
+    """``x`` with as many decimals as a bin ``width`` needs (2 significant digits of it)."""
+    if not math.isfinite(x):
+        return "inf" if x > 0 else "-inf"
+    decimals = max(0, 1 - math.floor(math.log10(width))) if width else 6
+    text = f"{x:.{decimals}f}"
+    text = text.rstrip("0").rstrip(".") if "." in text else text
+    return "0" if text in ("-0", "") else text
 
 
 Symbolizer = Categorical | Bins
@@ -176,16 +247,33 @@ class ChannelSpec:
     role: str
     name: str
     symbolizer: Symbolizer = field(default_factory=Categorical)
+    max_symbols: int | None = None
+    mode: str | None = None
 
     @property
     def path(self) -> FieldPath:
         """The parsed field path."""
         return parse_field_path(self.field)
 
+    @property
+    def symbol_limit(self) -> int:
+        """Most symbols this entry's channel may have (:data:`MAX_SYMBOLS` unless raised)."""
+        return self.max_symbols or MAX_SYMBOLS
+
     def to_dict(self) -> dict:
         """Plain JSON-able description."""
-        return {"topic": self.topic, "field": self.field, "role": self.role,
-                "name": self.name, **self.symbolizer.to_dict()}
+        limit = {"max_symbols": self.max_symbols} if self.max_symbols is not None else {}
+        out = {"topic": self.topic, "field": self.field, "role": self.role,
+               "name": self.name, **limit, **self.symbolizer.to_dict()}
+        if self.mode is not None:
+            out["mode"] = self.mode
+        return out
+
+    def value_label(self, value: Any) -> str:
+        """How a symbol value of this entry reads: bins as value ranges, others as they are."""
+        if isinstance(self.symbolizer, Bins) and isinstance(value, int) and not isinstance(value, bool):
+            return self.symbolizer.label(value)
+        return str(value)
 
 
 @dataclass(frozen=True)
@@ -196,10 +284,43 @@ class Spec:
     mode: str = DEFAULT_MODE
     tick_ns: int | None = None
     source: str = "<spec>"
+    phase_ns: int | None = None
 
     def topics(self) -> list[str]:
         """Topics the spec reads, in spec order, without repeats."""
         return list(dict.fromkeys(c.topic for c in self.channels))
+
+    def channel_mode(self, index: int) -> str:
+        """The event mode of entry ``index``: its own, else the file's."""
+        return self.channels[index].mode or self.mode
+
+    def value_label(self, name: str, value: Any) -> str:
+        """``value`` of the entry named ``name`` as text (bins as value ranges)."""
+        for entry in self.channels:
+            if entry.name == name:
+                return entry.value_label(value)
+        return str(value)
+
+    def only_topics(self, topics: Iterable[str]) -> "Spec":
+        """A copy with only the entries of ``topics``.
+
+        Raises:
+            SpecError: a topic is not in the spec, or no entry would remain.
+        """
+        wanted = list(dict.fromkeys(topics))
+        unknown = [t for t in wanted if t not in self.topics()]
+        if unknown:
+            raise SpecError(f"{self.source}: --topics {unknown[0]!r} is not a topic of the spec "
+                            f"(topics: {', '.join(self.topics())})")
+        return self.with_channels(c for c in self.channels if c.topic in wanted)
+
+    def warnings(self) -> list[str]:
+        """What about this spec could make a score mean something else than it seems."""
+        if any(c.role == ACTION for c in self.channels):
+            return []
+        return [f"{self.source}: the spec has no action channel, so every entry is predicted "
+                f"from the others' history alone; if a topic carries commands (cmd, setpoint, "
+                f"goal), give it role = \"action\""]
 
     @property
     def fitted(self) -> bool:
@@ -211,6 +332,8 @@ class Spec:
         out: dict[str, Any] = {"mode": self.mode, "channel": [c.to_dict() for c in self.channels]}
         if self.tick_ns is not None:
             out["tick_ns"] = self.tick_ns
+        if self.phase_ns is not None:
+            out["phase_ns"] = self.phase_ns
         return out
 
     @classmethod
@@ -221,6 +344,11 @@ class Spec:
     def with_channels(self, channels: Iterable[ChannelSpec]) -> "Spec":
         """A copy with other entries."""
         return replace(self, channels=tuple(channels))
+
+
+def value_labels(spec: Spec) -> dict[str, Any]:
+    """Per binned entry name, the function that shows its bins as value ranges."""
+    return {c.name: c.value_label for c in spec.channels if isinstance(c.symbolizer, Bins)}
 
 
 def load_spec(path: str | Path) -> Spec:
@@ -250,33 +378,72 @@ def _build_spec(data: dict, source: str) -> Spec:
     if mode not in MODES:
         raise SpecError(f"{source}: mode must be one of {', '.join(MODES)}, not {mode!r}")
     tick_ns = _tick_ns(data, mode, source)
+    phase_ns = _phase_ns(data, mode, tick_ns, source)
     entries = data.get("channel")
     if not isinstance(entries, list) or not entries:
         raise SpecError(f"{source}: no [[channel]] entries: a spec needs at least one")
-    topics = [e.get("topic") if isinstance(e, dict) else None for e in entries]
+    if len(entries) > MAX_CHANNELS:
+        raise SpecError(f"{source}: {len(entries)} [[channel]] entries; at most {MAX_CHANNELS:,}")
+    topics = Counter(e["topic"] for e in entries
+                     if isinstance(e, dict) and isinstance(e.get("topic"), str))
     channels = tuple(_build_entry(e, i, topics, source) for i, e in enumerate(entries))
-    names = [c.name for c in channels]
-    for name in names:
-        if names.count(name) > 1:
-            raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
-    return Spec(channels, mode, tick_ns, source)
+    name, n = Counter(c.name for c in channels).most_common(1)[0]
+    if n > 1:
+        raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
+    if mode == "tick" and any(c.mode for c in channels):
+        raise SpecError(f"{source}: mode \"tick\" samples every entry at each tick: drop the "
+                        f"entries' own `mode`")
+    return Spec(channels, mode, tick_ns, source, phase_ns)
+
+
+def _phase_ns(data: dict, mode: str, tick_ns: int | None, source: str) -> int | None:
+    if mode != "tick" and ("phase_ms" in data or "phase_ns" in data):
+        raise SpecError(f"{source}: phase_ms is for mode \"tick\" (the sampling instant after "
+                        f"each tick's commands)")
+    if mode != "tick":
+        return None
+    return _duration_ns(data, "phase", (1, tick_ns), "after the tick's commands: above 0, at "
+                        "most one tick", source)
 
 
 def _tick_ns(data: dict, mode: str, source: str) -> int | None:
-    if "tick_ms" in data and "tick_ns" in data:
-        raise SpecError(f"{source}: give tick_ms or tick_ns, not both")
-    tick = data.get("tick_ns", data["tick_ms"] * 1_000_000 if "tick_ms" in data else None)
-    if mode == "tick" and tick is None:
+    tick = _duration_ns(data, "tick", TICK_NS_RANGE, "1 ns to a day", source)
+    if tick is None and mode == "tick":
         raise SpecError(f"{source}: mode \"tick\" needs tick_ms (or tick_ns)")
-    if tick is not None and (not isinstance(tick, (int, float)) or tick <= 0):
-        raise SpecError(f"{source}: the tick period must be a positive number, not {tick!r}")
-    return None if tick is None else int(tick)
+    return tick
+
+
+def _duration_ns(data: dict, name: str, bounds: tuple[int, int], what: str,
+                 source: str) -> int | None:
+    """``NAME_ms`` or ``NAME_ns`` of the file in ns, ``None`` when neither is given."""
+    ms, ns = f"{name}_ms", f"{name}_ns"
+    if ms in data and ns in data:
+        raise SpecError(f"{source}: give {ms} or {ns}, not both")
+    key = ms if ms in data else ns if ns in data else None
+    if key is None:
+        return None
+    value, scale = data[key], 1_000_000 if key == ms else 1
+    lo, hi = bounds
+    if not _is_number(value) or not lo <= value * scale <= hi:
+        raise SpecError(f"{source}: `{key}` must be a number from {lo / scale:g} to {hi / scale:g}"
+                        f" ({what}), not {_shown(value)}")
+    return int(value * scale)
+
+
+def _is_number(value: Any) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _where(source: str, i: int, entry: dict) -> str:
     topic = entry.get("topic", "?") if isinstance(entry, dict) else "?"
     fld = entry.get("field", "") if isinstance(entry, dict) else ""
-    return f"{source}: channel entry {i + 1} ({topic}{':' + fld if fld else ''})"
+    return f"{source}: channel entry {i + 1} ({topic}{f':{fld}' if fld else ''})"
 
 
 def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
@@ -294,30 +461,73 @@ def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
     fld = entry.get("field", "")
     if not isinstance(fld, str):
         raise SpecError(f"{where}: `field` must be a string")
+    if not isinstance(entry.get("name", ""), str):
+        raise SpecError(f"{where}: `name` must be a string")
     try:
         parse_field_path(fld)
     except FieldPathError as err:
         raise SpecError(f"{where}: {err}") from err
-    name = entry.get("name") or (entry["topic"] if topics.count(entry["topic"]) == 1 or not fld
+    name = entry.get("name") or (entry["topic"] if topics[entry["topic"]] == 1 or not fld
                                  else f"{entry['topic']}:{fld}")
-    return ChannelSpec(entry["topic"], fld, entry["role"], str(name), _build_symbolizer(entry, where))
+    mode = entry.get("mode")
+    if mode is not None and mode not in CHANNEL_MODES:
+        raise SpecError(f"{where}: an entry's mode must be \"message\" or \"change\", not "
+                        f"{_shown(mode)}")
+    max_symbols = _max_symbols(entry, where)
+    limit = max_symbols or MAX_SYMBOLS
+    return ChannelSpec(entry["topic"], fld, entry["role"], name,
+                       _build_symbolizer(entry, where, limit), max_symbols=max_symbols, mode=mode)
 
 
-def _numbers(value: Any, key: str, where: str) -> tuple[float, ...]:
-    if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                              for v in value):
-        raise SpecError(f"{where}: `{key}` must be a list of numbers")
-    return tuple(float(v) for v in value)
-
-
-def _positive(value: Any, key: str, where: str, integer: bool = False) -> Any:
-    kind = int if integer else (int, float)
-    if isinstance(value, bool) or not isinstance(value, kind) or value <= 0:
-        raise SpecError(f"{where}: `{key}` must be a positive {'integer' if integer else 'number'}")
+def _max_symbols(entry: dict, where: str) -> int | None:
+    if "max_symbols" not in entry:
+        return None
+    value = entry["max_symbols"]
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_SYMBOLS_LIMIT:
+        raise SpecError(f"{where}: `max_symbols` must be an integer from 1 to {MAX_SYMBOLS_LIMIT:,}, "
+                        f"not {_shown(value)}")
     return value
 
 
-def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
+def _numbers(value: Any, key: str, where: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or not all(_is_number(v) for v in value):
+        raise SpecError(f"{where}: `{key}` must be a list of finite numbers")
+    return tuple(float(v) for v in value)
+
+
+def _count(value: Any, key: str, where: str, limit: int) -> int:
+    """A positive integer of at most ``limit`` (symbols of the channel)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limit:
+        raise SpecError(f"{where}: `{key}` must be an integer from 1 to {limit:,} (the channel's "
+                        f"symbol limit; raise it with max_symbols), not {_shown(value)}")
+    return value
+
+
+def _increasing(value: Any, key: str, where: str, limit: int) -> tuple[float, ...]:
+    edges = _numbers(value, key, where)
+    if not edges or any(a >= b for a, b in zip(edges, edges[1:])):
+        raise SpecError(f"{where}: `{key}` must be a non-empty, strictly increasing list")
+    if len(edges) >= limit:
+        raise SpecError(f"{where}: `{key}` makes {len(edges) + 1:,} bins; at most {limit:,} "
+                        f"(raise it with max_symbols)")
+    return edges
+
+
+def _values(value: Any, where: str, limit: int) -> tuple:
+    if not isinstance(value, list):
+        raise SpecError(f"{where}: `values` must be a list of distinct values")
+    for v in value:
+        if not isinstance(v, (str, int, float)) or isinstance(v, float) and not math.isfinite(v):
+            raise SpecError(f"{where}: `values` may hold strings, integers, finite numbers and "
+                            f"booleans, not {_shown(v)}")
+    if len(set(value)) != len(value):
+        raise SpecError(f"{where}: `values` must be distinct (1, 1.0 and true are the same value)")
+    if len(value) > limit:
+        raise SpecError(f"{where}: {len(value):,} `values`; at most {limit:,} (raise it with max_symbols)")
+    return tuple(value)
+
+
+def _build_symbolizer(entry: dict, where: str, limit: int) -> Symbolizer:
     kinds = [k for k in ("width", "range", "quantiles") if k in entry]
     if "edges" in entry and "quantiles" not in entry:
         kinds.append("edges")
@@ -325,44 +535,62 @@ def _build_symbolizer(entry: dict, where: str) -> Symbolizer:
     if "values" in entry and stray:
         raise SpecError(f"{where}: `values` (categorical) cannot be combined with `{stray[0]}` (bins)")
     if "values" in entry:
-        values = entry["values"]
-        if not isinstance(values, list) or len(set(map(repr, values))) != len(values):
-            raise SpecError(f"{where}: `values` must be a list of distinct values")
-        return Categorical(tuple(values))
+        return Categorical(_values(entry["values"], where, limit))
     if not kinds:
         if stray:
             raise SpecError(f"{where}: `{stray[0]}` needs one of width, range (+count), edges, quantiles")
         return Categorical()
     if len(kinds) > 1:
         raise SpecError(f"{where}: choose one binning: {' or '.join(kinds)}")
-    return _build_bins(entry, kinds[0], where)
+    return _build_bins(entry, kinds[0], where, limit)
 
 
-def _build_bins(entry: dict, kind: str, where: str) -> Bins:
+def _build_bins(entry: dict, kind: str, where: str, limit: int) -> Bins:
+    bins = _build_bins_kind(entry, kind, where, limit)
+    clip, unit = entry.get("clip", False), entry.get("unit")
+    if not isinstance(clip, bool):
+        raise SpecError(f"{where}: `clip` must be true or false")
+    if clip and (kind != "range" or bins.wrap):
+        raise SpecError(f"{where}: `clip` goes with `range` (values outside it are put in the "
+                        f"end bins)")
+    if unit is not None and (not isinstance(unit, str) or not unit.strip()):
+        raise SpecError(f"{where}: `unit` must be a short text such as \"rad\", \"deg\" or \"m\"")
+    return replace(bins, clip=clip, unit=unit)
+
+
+def _build_bins_kind(entry: dict, kind: str, where: str, limit: int) -> Bins:
     wrap = entry.get("wrap", False)
     if not isinstance(wrap, bool):
         raise SpecError(f"{where}: `wrap` must be true or false")
     if wrap and kind != "range":
         raise SpecError(f"{where}: `wrap` needs `range` (the period) and `count`")
     if kind == "width":
-        origin = entry.get("origin", 0.0)
-        if isinstance(origin, bool) or not isinstance(origin, (int, float)):
-            raise SpecError(f"{where}: `origin` must be a number")
-        return Bins(width=float(_positive(entry["width"], "width", where)), origin=float(origin))
+        return _width_bins(entry, where)
     if kind == "range":
         lo_hi = _numbers(entry["range"], "range", where)
-        if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1]:
-            raise SpecError(f"{where}: `range` must be [low, high] with low < high")
+        if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1] or not math.isfinite(lo_hi[1] - lo_hi[0]):
+            raise SpecError(f"{where}: `range` must be [low, high] with low < high, both finite")
         if "count" not in entry:
             raise SpecError(f"{where}: `range` needs `count`, the number of bins")
-        return Bins(range=lo_hi, count=_positive(entry["count"], "count", where, True), wrap=wrap)
+        return Bins(range=lo_hi, count=_count(entry["count"], "count", where, limit), wrap=wrap)
     if kind == "edges":
-        edges = _numbers(entry["edges"], "edges", where)
-        if not edges or list(edges) != sorted(set(edges)):
-            raise SpecError(f"{where}: `edges` must be a non-empty increasing list")
-        return Bins(edges=edges)
+        return Bins(edges=_increasing(entry["edges"], "edges", where, limit))
+    quantiles = _count(entry["quantiles"], "quantiles", where, limit)
     fitted = _numbers(entry["edges"], "edges", where) if "edges" in entry else None
-    return Bins(quantiles=_positive(entry["quantiles"], "quantiles", where, True), edges=fitted)
+    if fitted is not None and (len(fitted) >= quantiles or any(a >= b for a, b in zip(fitted, fitted[1:]))):
+        raise SpecError(f"{where}: fitted `edges` must be strictly increasing, fewer than `quantiles`")
+    return Bins(quantiles=quantiles, edges=fitted)
+
+
+def _width_bins(entry: dict, where: str) -> Bins:
+    width, origin = entry["width"], entry.get("origin", 0.0)
+    lo, hi = WIDTH_RANGE
+    if not _is_number(width) or not lo <= width <= hi:
+        raise SpecError(f"{where}: `width` must be a number from {lo:g} to {hi:g}, not {_shown(width)}")
+    if not _is_number(origin) or abs(origin) > MAX_ORIGIN:
+        raise SpecError(f"{where}: `origin` must be a finite number within +-{MAX_ORIGIN:g}, "
+                        f"not {_shown(origin)}")
+    return Bins(width=float(width), origin=float(origin))
 
 
 # --- CLI shorthand ------------------------------------------------------------------------
@@ -377,33 +605,69 @@ def _literal(text: str) -> Any:
     return {"true": True, "false": False}.get(text.lower(), text)
 
 
+def _split_outside_brackets(text: str) -> list[str]:
+    """Split on commas that are not inside ``[...]``."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "[") - (ch == "]")
+        if ch == "," and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    return parts + [text[start:]]
+
+
+def _option_items(value: str) -> list:
+    inner = value.strip()
+    if inner.startswith("[") and inner.endswith("]"):
+        inner = inner[1:-1]
+        return [_literal(v.strip().strip("'\"")) for v in inner.replace(";", ",").split(",") if v.strip()]
+    return [_literal(v) for v in value.split(";")]
+
+
 def parse_channel_option(text: str) -> dict:
     """Parse ``TOPIC:FIELD:ROLE[:OPTIONS]`` into a spec entry table (see the module doc).
+
+    OPTIONS: ``key=value`` pairs separated by commas; lists as ``[a,b]`` or ``a;b``:
+    ``range=[0,6.28],count=36,wrap=true``, ``values=[L,R]``, ``mode=change``.
 
     Raises:
         SpecError: fewer than three parts or a malformed option.
     """
-    parts = text.split(":", 3)
+    parts = _split_field_colons(text)
     if len(parts) < 3:
         raise SpecError(f"--channel {text!r}: expected TOPIC:FIELD:ROLE[:OPTIONS], "
-                        f"e.g. /pointer/command:command:action:values=L;R")
+                        f"e.g. /pointer/command:command:action:values=[L,R]")
     entry: dict[str, Any] = {"topic": parts[0], "field": parts[1], "role": parts[2]}
-    for option in (parts[3].split(",") if len(parts) == 4 and parts[3] else []):
+    for option in (_split_outside_brackets(parts[3]) if len(parts) == 4 and parts[3] else []):
         key, eq, value = option.partition("=")
-        if not eq:
-            raise SpecError(f"--channel {text!r}: option {option!r} must be key=value")
-        items = [_literal(v) for v in value.split(";")]
-        listy = key in ("values", "edges", "range") or len(items) > 1
-        entry[key.strip()] = items if listy else items[0]
+        if not eq or not key.strip():
+            raise SpecError(f"--channel {text!r}: option {option!r} must be key=value "
+                            f"(lists as key=[a,b])")
+        items = _option_items(value)
+        listy = key.strip() in ("values", "edges", "range") or len(items) > 1
+        entry[key.strip()] = items if listy else (items[0] if items else "")
     return entry
 
 
+def _split_field_colons(text: str) -> list[str]:
+    """``TOPIC:FIELD:ROLE:OPTIONS``: at most four parts; colons inside brackets stay."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "[") - (ch == "]")
+        if ch == ":" and depth == 0 and len(parts) < 3:
+            parts.append(text[start:i])
+            start = i + 1
+    return parts + [text[start:]]
+
+
 def spec_from_options(channels: Iterable[str], mode: str = DEFAULT_MODE,
-                      tick_ms: float | None = None) -> Spec:
-    """Build a spec from ``--channel`` shorthands, a mode and an optional tick period."""
+                      tick_ms: float | None = None, phase_ms: float | None = None) -> Spec:
+    """Build a spec from ``--channel`` shorthands, a mode, an optional tick period and phase."""
     data: dict[str, Any] = {"mode": mode, "channel": [parse_channel_option(c) for c in channels]}
     if tick_ms is not None:
         data["tick_ms"] = tick_ms
+    if phase_ms is not None:
+        data["phase_ms"] = phase_ms
     return _build_spec(data, "--channel options")
 
 

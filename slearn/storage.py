@@ -38,6 +38,7 @@ gives the same bytes.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -52,17 +53,16 @@ import pyarrow.parquet as pq
 
 from slearn import __version__
 from slearn.errors import InputError, LibraryFormatError
+from slearn.files import atomic_write, check_output, regular_file
 from slearn.library import PatternLibrary
+from slearn.library_header import FORMAT_NAME, FORMAT_VERSION, TABLES, parse_header
 from slearn.literal import LiteralLibrary
 from slearn.mixer import Mixer
 from slearn.spec import Bins, Spec
 from slearn.tokens import TokenTable
 from slearn.vocabulary import Vocabulary
 
-FORMAT_NAME = "slearn-library"
-FORMAT_VERSION = 2
 METADATA_KEY = b"slearn"
-TABLES = ("vocabulary", "token", "view", "pattern")
 SCORINGS = ("adaptive", "literal")
 ROW_GROUP_ROWS = 1 << 20
 
@@ -160,7 +160,7 @@ def save_library(path: str | os.PathLike, library: PatternLibrary | LiteralLibra
     tables = [_vocabulary_table(vocabulary, spec, path), _token_table(library.tokens),
               _view_table(library), _pattern_table(library, path)]
     metadata = _metadata(library, vocabulary, spec, params, provenance, [len(t) for t in tables])
-    _write_atomic(path, tables, metadata)
+    _write_atomic(path, tables, metadata, overwrite)
     return SaveSummary(str(path), len(library), path.stat().st_size)
 
 
@@ -171,19 +171,6 @@ def library_params(library: PatternLibrary | LiteralLibrary) -> dict:
     if isinstance(library, PatternLibrary):
         params.update(factored=library.factored, has_actions=library.has_actions)
     return params
-
-
-def check_output(path: str | os.PathLike, overwrite: bool) -> None:
-    """Refuse an existing output unless ``overwrite``; refuse a missing folder.
-
-    Raises:
-        InputError: naming the file and what to do.
-    """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise InputError(f"{path} already exists: pass --force to overwrite it")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: folder {path.parent} does not exist: create it first")
 
 
 def _metadata(library, vocabulary: Vocabulary, spec: Spec | None, params: dict,
@@ -294,36 +281,22 @@ def _pattern_table(library, path: Path) -> pa.Table:
     return _table("pattern", n, columns)
 
 
-def _write_atomic(path: Path, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+def _write_atomic(path: Path, tables: list[pa.Table], metadata: dict[bytes, bytes],
+                  overwrite: bool) -> None:
     rows = sum(len(t) for t in tables)
-    try:
-        _write_parquet(tmp, tables, metadata)
-        _verify(tmp, rows, metadata, path)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync(path.parent)
+    with atomic_write(path, overwrite=overwrite) as out:
+        _write_parquet(out.file, tables, metadata)
+        out.file.flush()
+        _verify(out.tmp_path, rows, metadata, path)
     _verify(path, rows, metadata, path)
 
 
-def _write_parquet(tmp: Path, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
-    with pq.ParquetWriter(tmp, SCHEMA.with_metadata(metadata), compression="zstd",
+def _write_parquet(sink, tables: list[pa.Table], metadata: dict[bytes, bytes]) -> None:
+    with pq.ParquetWriter(sink, SCHEMA.with_metadata(metadata), compression="zstd",
                           write_page_checksum=True) as writer:
         for table in tables:
             if len(table):
                 writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
-    _fsync(tmp)
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _verify(written: Path, rows: int, metadata: dict[bytes, bytes], path: Path) -> None:
@@ -351,43 +324,47 @@ def _reading(path: Path) -> Iterator[None]:
         yield
     except LibraryFormatError:
         raise
-    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, IndexError) as err:
+    except (pa.ArrowException, OSError, ValueError, KeyError, TypeError, IndexError, OverflowError,
+            RecursionError) as err:
         raise LibraryFormatError(f"{path}: corrupted pattern library ({type(err).__name__}: "
                                  f"{_one_line(err)[:300]}): re-create it with `slearn learn`") from err
 
 
 def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
-    if not path.is_file():
-        raise LibraryFormatError(f"{path}: no such library file")
+    try:
+        regular_file(path, "library file")
+    except InputError as err:
+        raise LibraryFormatError(str(err)) from err
     try:
         parquet = pq.ParquetFile(path, page_checksum_verification=True)
-    except (pa.ArrowException, OSError) as err:
+        raw = (parquet.schema_arrow.metadata or {}).get(METADATA_KEY)
+        columns = _columns(parquet)
+    except (pa.ArrowException, OSError, ValueError) as err:  # a flipped bit can give UnicodeDecodeError
         raise LibraryFormatError(f"{path}: not a readable Parquet file, truncated or corrupted "
                                  f"({_one_line(err)[:200]}): re-create it with `slearn learn`") from err
-    raw = (parquet.schema_arrow.metadata or {}).get(METADATA_KEY)
     if raw is None:
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library (no "
                                  f"'slearn' metadata): make libraries with `slearn learn`")
-    with _reading(path):
-        doc = json.loads(raw)
-    _check_format(doc, path)
+    doc = parse_header(raw, path)  # before the columns: an old format is named as such
+    if columns != _stored_columns():  # pyarrow aborts the process on some mislabelled columns
+        raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
+                                 f"library's): re-create it with `slearn learn`")
     return parquet, doc
 
 
-def _check_format(doc: Any, path: Path) -> None:
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
-        raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library "
-                                 f"(format {doc.get('format') if isinstance(doc, dict) else None!r})")
-    version = doc.get("version")
-    if not isinstance(version, int) or version < 1:
-        raise LibraryFormatError(f"{path}: invalid library format version {version!r}")
-    if version < FORMAT_VERSION:
-        raise LibraryFormatError(f"{path}: library format version {version} (slearn 0.1) counted "
-                                 f"patterns only at parse boundaries; this slearn reads format "
-                                 f"{FORMAT_VERSION}: learn the logs again with `slearn learn`")
-    if version > FORMAT_VERSION:
-        raise LibraryFormatError(f"{path}: library format version {version} is newer than this "
-                                 f"slearn {__version__} reads (up to {FORMAT_VERSION}): upgrade slearn")
+def _columns(parquet: pq.ParquetFile) -> tuple:
+    """The Arrow schema and the Parquet columns (path, physical type, levels) of a file."""
+    return (parquet.schema_arrow.remove_metadata(),
+            [(c.path, c.physical_type, c.max_definition_level, c.max_repetition_level)
+             for c in parquet.schema])
+
+
+@functools.cache
+def _stored_columns() -> tuple:
+    """:func:`_columns` of a file written with :data:`SCHEMA`."""
+    sink = pa.BufferOutputStream()
+    pq.write_table(SCHEMA.empty_table(), sink)
+    return _columns(pq.ParquetFile(pa.BufferReader(sink.getvalue())))
 
 
 def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, list[int]]:
@@ -401,7 +378,7 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
         k = int(np.searchsorted(bounds, start, side="right")) - 1
         if k >= len(TABLES) or start + group.num_rows > bounds[k + 1]:
             raise LibraryFormatError(f"{path}: row groups do not match the library's tables")
-        _check_group_table(group, TABLES[k], path)
+        _check_group_table(parquet, i, TABLES[k], path)
         groups[TABLES[k]].append(i)
         start += group.num_rows
     if start != bounds[-1]:
@@ -409,9 +386,10 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
     return groups
 
 
-def _check_group_table(group, name: str, path: Path) -> None:
-    stats = group.column(0).statistics
-    if stats is not None and stats.has_min_max and not stats.min == stats.max == name:
+def _check_group_table(parquet: pq.ParquetFile, i: int, name: str, path: Path) -> None:
+    # The column is read, not its statistics: pyarrow aborts the process on some damaged
+    # column metadata (row_group(i).column(j)) where reading raises an error.
+    if parquet.read_row_group(i, columns=["table"]).column(0).unique().to_pylist() != [name]:
         raise LibraryFormatError(f"{path}: a row group of table {name!r} holds other rows")
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Hashable, Iterable
+from typing import Callable, Hashable, Iterable
 
 from slearn.errors import InputError
 
@@ -24,6 +24,9 @@ class Vocabulary:
     _names: list[tuple[str, Hashable]] = field(default_factory=list)
     _symbols: dict[tuple[str, Hashable], int] = field(default_factory=dict)
     roles: dict[str, str] = field(default_factory=dict)
+    value_labels: dict[str, Callable[[Hashable], str]] = field(default_factory=dict, compare=False,
+                                                               repr=False)
+    """Per channel, how its values read (bins as value ranges); set from the spec."""
 
     def add_channel(self, channel: str, role: str) -> None:
         """Declare ``channel`` with its role; re-declaring with another role is an error."""
@@ -60,8 +63,13 @@ class Vocabulary:
 
     def label(self, symbol: int) -> str:
         """A short human-readable label, ``channel=value``."""
+        return f"{self._names[symbol][0]}={self.value_text(symbol)}"
+
+    def value_text(self, symbol: int) -> str:
+        """The value of a symbol as text (a bin as its value range when the spec says)."""
         channel, value = self._names[symbol]
-        return f"{channel}={value}"
+        show = self.value_labels.get(channel)
+        return show(value) if show is not None else str(value)
 
     def channels(self) -> list[str]:
         """Channels in declaration order."""

@@ -9,8 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import main
+from slearn.bags import open_log
 from slearn.datasets.registry import (ARM_TRIALS, HELDOUT_SEEDS, POINTER_TRIALS, TRAIN_SEEDS,
-                                      build_dataset, list_datasets)
+                                      build_dataset, list_datasets, sha256_of)
 from slearn.errors import InputError
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import CONDITIONS
@@ -77,9 +78,13 @@ def test_pointer_paper_layout_card_and_spec(pointer_paper):
     card = (folder / "README.md").read_text()
     for needed in ("## What", "## How it was made", "## Channels", "## Spec", "## License",
                    "/pointer/command", "held-out seeds: 4", f"{POINTER_TRIALS:,}",
-                   "`heldout/delay-seed4.mcap`", 'values = ["L", "R"]'):
+                   "`heldout/delay-seed4.mcap`", 'values = ["L", "R"]', "## Expected replay figures",
+                   "Bayes ceiling", "## Limitations", "## Citation", "Rohrer", "one library per condition"):
         assert needed in card
     assert "$" not in card
+    assert sha256_of(folder / "heldout" / "delay-seed4.mcap") in card
+    sums = dict(line.split("  ")[::-1] for line in (folder / "SHA256SUMS").read_text().splitlines())
+    assert sums["README.md"] == sha256_of(folder / "README.md") and len(sums) == 32
 
 
 def test_pointer_paper_learns_and_replays(pointer_paper, tmp_path):
@@ -89,6 +94,9 @@ def test_pointer_paper_learns_and_replays(pointer_paper, tmp_path):
     assert learned["episodes"] == len(TRAIN_SEEDS) and learned["patterns"] > 100
     totals = _replay(library, sorted((folder / "heldout").glob("simple-*")))
     assert totals["events"] == POINTER_TRIALS and totals["accuracy"] > 0.99
+    # the card's expected figure is what this replay printed
+    row = next(line for line in (folder / "README.md").read_text().splitlines() if line.startswith("| simple |"))
+    assert f"| {100 * totals['accuracy']:.1f} % |" in row
 
 
 def test_pointer_arm_layout_learns_and_replays(pointer_arm, tmp_path):
@@ -129,16 +137,22 @@ def test_pr2_sample_without_a_log_tells_the_user(tmp_path):
 
 
 @pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
-def test_pr2_sample_with_source_learns_and_replays(tmp_path):
+def test_pr2_sample_with_source_splits_it_and_learns_and_replays(tmp_path):
     folder = tmp_path / "pr2"
     summary = build_dataset("pr2-sample", folder, source=PR2_LOG)
-    [episode] = summary.episodes
-    assert episode.split == "heldout" and Path(episode.path).read_bytes() == PR2_LOG.read_bytes()
-    assert f"heldout/{PR2_LOG.name}" in (folder / "README.md").read_text()
+    train, heldout = summary.episodes
+    assert (train.split, heldout.split) == ("train", "heldout")
+    card = (folder / "README.md").read_text()
+    assert "`train/pr2_pr1012_sensors_ros2-train.mcap`" in card and "## Expected replay figures" in card
+    assert "fewer than 1,000" in card and "## Citation" in card and "Rohrer" in card
+    for episode in (train, heldout):
+        assert sha256_of(episode.path) in card
+        with open_log(episode.path) as log:
+            assert log.profile == "ros2"
     library = tmp_path / "pr2.parquet"
-    learned = _learn(library, folder / "spec.toml", [episode.path])
-    assert learned["steps"] > 100
-    assert _replay(library, [episode.path])["accuracy"] > 0.5
+    learned = _learn(library, folder / "spec.toml", sorted(str(p) for p in (folder / "train").glob("*.mcap")))
+    assert learned["steps"] > 50
+    assert _replay(library, [heldout.path])["events"] > 10
 
 
 def test_pr2_source_that_does_not_fit_is_refused(tmp_path):
@@ -147,6 +161,7 @@ def test_pr2_source_that_does_not_fit_is_refused(tmp_path):
     with pytest.raises(InputError, match=r"--source .*arm.mcap: the pr2-sample spec does not fit"):
         build_dataset("pr2-sample", tmp_path / "pr2", source=log)
     assert list((tmp_path / "pr2" / "heldout").iterdir()) == []
+    assert list((tmp_path / "pr2" / "train").iterdir()) == []
 
 
 def test_build_errors(tmp_path):

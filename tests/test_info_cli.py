@@ -51,25 +51,44 @@ def test_json_output(log):
     assert doc["n_messages"] == 23 and doc["truncated"] is None
     assert channels["/cmd"]["count"] == 11 and channels["/cmd"]["rate_hz"] == pytest.approx(10.0)
     fields = {f["path"]: f for f in channels["/state"]["fields"]}
-    assert fields["pose.x"]["examples"] == [0.0, 0.25, 0.5] and fields["pose.x"]["type"] == "float"
-    assert fields["pose.ok"]["type"] == "bool"
+    x = fields["pose.x"]
+    assert x["examples"] == [0.0, 0.5, 1.25, 2.0, 2.5] and x["type"] == "float"  # across the log
+    assert (x["min"], x["max"], x["n_distinct"], x["constant"], x["changes"]) == (0.0, 2.5, 11, False, 10)
+    assert fields["pose.ok"]["type"] == "bool" and fields["pose.ok"]["constant"] is True
+    assert fields["position[name=b]"]["min"] == -10
     assert channels["/cmd"]["fields"][0]["examples"] == ["L", "R"]
     assert channels["/raw"]["decodable"] is False
+    assert doc["start_time"] == "1970-01-01T00:00:00.000000000Z" and doc["end_s"] == pytest.approx(1.0)
 
 
-def test_suggest_spec_skeleton_becomes_a_spec(log, tmp_path):
+def test_suggest_spec_learns_as_written(log, tmp_path):
     target = tmp_path / "spec.toml"
     assert run(log, "--suggest-spec", target).exit_code == 0
     text = target.read_text()
-    assert "# topic = \"/state\"" in text and "cannot be decoded" in text
-    block = re.split(r"\n#?\n", text.split("# [[channel]]\n", 1)[1])[0]  # the first entry
-    entry = "[[channel]]\n" + re.sub(r"(?m)^# ", "", block)
-    (tmp_path / "one.toml").write_text(entry)
-    spec = load_spec(tmp_path / "one.toml")
-    assert spec.channels[0].topic == "/cmd" and spec.channels[0].field == "command"
+    assert "cannot be decoded" in text and "skipped (constant): pose.ok" in text
+    spec = load_spec(target)
+    entries = {(c.topic, c.field): c for c in spec.channels}
+    assert spec.mode == "message" and entries[("/cmd", "command")].role == "action"
+    assert entries[("/cmd", "command")].symbolizer.values == ("L", "R")
+    assert {f for t, f in entries if t == "/state"} == {"position[name=a]", "position[name=b]", "pose.x"}
+    learned = CliRunner().invoke(main, ["learn", str(log), "--spec", str(target), "-o",
+                                        str(tmp_path / "lib.parquet")])
+    assert learned.exit_code == 0, learned.output
     refused = run(log, "--suggest-spec", target)
-    assert refused.exit_code == 1 and "exists: use --force" in refused.stderr
+    assert refused.exit_code == 1 and "already exists: pass --force" in refused.stderr
     assert run(log, "--suggest-spec", target, "--force").exit_code == 0
+
+
+def test_bursts_have_no_rate_and_topics_and_windows_select(tmp_path):
+    path = write_log(tmp_path / "b.mcap", [("/static", 5 + i, {"v": i}) for i in range(3)]
+                     + [("/s", i * 100_000_000, {"v": i}) for i in range(20)])
+    doc = json.loads(run("--json", path).stdout)["files"][0]
+    static = next(c for c in doc["channels"] if c["topic"] == "/static")
+    assert static["burst"] is True and static["rate_hz"] is None
+    assert "burst in 0.000 ms" in run(path).stdout
+    only = json.loads(run("--json", "--topics", "/s", "--start", "0.5", "--end", "1", path).stdout)
+    [channel] = only["files"][0]["channels"]
+    assert channel["topic"] == "/s" and channel["count"] == 5
 
 
 def test_truncated_log_exits_3_and_still_reports(log, tmp_path):

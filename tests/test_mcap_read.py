@@ -230,3 +230,137 @@ def test_random_corruption_never_escapes_as_a_traceback(tmp_path):
             except InputError:
                 continue
         assert len(times) <= 120
+
+
+# --- hostile chunks: bombs, sizes that lie, zero runs, memory limits ----------------------
+
+import mcap_bytes as mb  # noqa: E402
+from slearn import mcap_read  # noqa: E402
+
+
+def _read_bytes(tmp_path, data, name="x.mcap"):
+    path = tmp_path / name
+    path.write_bytes(data)
+    report = ReadReport("")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TruncatedLogWarning)
+        got = [(m.log_time_ns, m.data) for m in iter_messages(path, report=report)]
+    return got, report
+
+
+def _messages(n, start=0, data=b'{"v":1}'):
+    return b"".join(mb.message(start + i, data) for i in range(n))
+
+
+def test_a_chunk_declaring_more_than_the_limit_is_skipped_without_decompressing(tmp_path, monkeypatch):
+    real = mcap_read.decompress_exactly
+    sizes = []
+
+    def recorded(compression, data, size):
+        sizes.append(size)
+        return real(compression, data, size)
+
+    monkeypatch.setattr(mcap_read, "decompress_exactly", recorded)
+    bomb = mb.chunk(_messages(10), declared=1 << 40)
+    got, report = _read_bytes(tmp_path, mb.log(bomb, mb.chunk(_messages(5, 100))))
+    assert [t for t, _ in got] == [100, 101, 102, 103, 104]
+    assert report.n_skipped_chunks == 1 and sizes == [5 * len(mb.message(0))]
+    assert "declares 1,099,511,627,776 bytes uncompressed" in report.reason
+    assert "raise SLEARN_MAX_CHUNK_MB" in report.describe()
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", ""])
+@pytest.mark.parametrize("lie", [-1, 1, 1000])
+def test_records_that_differ_from_the_declared_size_are_a_damaged_chunk(tmp_path, compression, lie):
+    records = _messages(20)
+    bad = mb.chunk(records, compression, declared=len(records) + lie)
+    got, report = _read_bytes(tmp_path, mb.log(bad, mb.chunk(_messages(3, 50), compression)))
+    assert [t for t, _ in got] == [50, 51, 52]
+    assert report.n_skipped_chunks == 1 and report.broken_at == len(mb.MAGIC + mb.header() + mb.schema()
+                                                                     + mb.channel())
+
+
+def test_a_zstd_stream_longer_than_declared_stops_at_the_declared_size(tmp_path):
+    import zstandard
+    compressor = zstandard.ZstdCompressor().compressobj()
+    data = compressor.compress(b"\0" * (8 << 20)) + compressor.flush()  # no content size in the frame
+    got, report = _read_bytes(tmp_path, mb.log(mb.chunk(data=data, declared=1000)))
+    assert got == [] and report.n_skipped_chunks == 1 and "decompress" in report.reason
+
+
+def test_a_chunk_of_zeros_is_refused_at_its_first_record(tmp_path):
+    got, report = _read_bytes(tmp_path, mb.log(mb.chunk(b"\0" * (16 << 20)), mb.chunk(_messages(2, 7))))
+    assert [t for t, _ in got] == [7, 8]
+    assert "zero bytes instead of a record at +0" in report.reason
+
+
+def test_a_zero_run_between_records_is_skipped_whole_and_reading_goes_on(tmp_path):
+    zeros = b"\0" * (3 << 20)
+    data = mb.log(_messages(5), zeros, _messages(5, 10))
+    got, report = _read_bytes(tmp_path, data)
+    assert [t for t, _ in got] == [0, 1, 2, 3, 4, 10, 11, 12, 13, 14]
+    assert report.reason == f"{len(zeros)} zero bytes instead of records"
+    assert report.broken_at == data.index(zeros)
+
+
+def test_a_chunk_of_tiny_messages_over_the_limit_is_skipped(tmp_path, monkeypatch):
+    data = mb.log(mb.chunk(_messages(100_000, data=b"")), mb.chunk(_messages(3, 10 ** 6)))
+    got, report = _read_bytes(tmp_path, data)
+    assert len(got) == 100_003 and not report.truncated
+    monkeypatch.setenv("SLEARN_MAX_CHUNK_MB", "10")  # 3.1 MB of records, 25 MB of index
+    got, report = _read_bytes(tmp_path, data)
+    assert len(got) == 3 and report.n_skipped_chunks == 1
+    assert "3,100,000 bytes of records with at least 32,768 records: over the 10 MiB of chunk data " \
+           "read at once; raise SLEARN_MAX_CHUNK_MB to read it" in report.reason
+
+
+def test_chunks_overlapping_in_time_share_the_memory_limit(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLEARN_MAX_CHUNK_MB", "1")
+    payload = b'{"pad":"' + b"x" * 1000 + b'"}'
+    overlapping = mb.log(*[mb.chunk(_messages(300, data=payload)) for _ in range(4)])
+    got, report = _read_bytes(tmp_path, overlapping)
+    assert len(got) == 600 and report.n_skipped_chunks == 2
+    assert "over the 1 MiB of chunk data read at once with 0.7 MiB held by chunks overlapping in time" \
+        in report.reason
+    successive = mb.log(*[mb.chunk(_messages(300, 1000 * k, payload), start=1000 * k, end=1000 * k + 299)
+                          for k in range(4)])
+    got, report = _read_bytes(tmp_path, successive)
+    assert len(got) == 1200 and not report.truncated
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "lots", "2000000"])
+def test_a_bad_memory_limit_is_an_input_error(tmp_path, monkeypatch, value):
+    path = tmp_path / "x.mcap"
+    path.write_bytes(mb.log(_messages(2)))
+    monkeypatch.setenv("SLEARN_MAX_CHUNK_MB", value)
+    with pytest.raises(InputError, match="SLEARN_MAX_CHUNK_MB=.*whole number of MiB from 1 to 1,048,576"):
+        McapLog(path)
+
+
+def test_a_fifo_is_refused_without_opening_it(tmp_path):
+    import os
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        McapLog(fifo)  # opening a FIFO would block until a writer came
+
+
+def test_metadata_and_attachments_over_the_limit_or_damaged_are_skipped_and_noted(tmp_path):
+    path = tmp_path / "extras.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        writer.add_metadata("small", {"k": "v"})
+        writer.add_attachment(1, 2, "big.bin", "application/octet-stream", bytes(2 << 20))
+        writer.add_attachment(3, 4, "small.txt", "text/plain", b"hello")
+        writer.add_metadata("damaged", {"a": "b"})
+        writer.finish()
+    data = bytearray(path.read_bytes())
+    at = data.index(b"damaged") + len(b"damaged")
+    data[at:at + 4] = (1 << 31).to_bytes(4, "little")  # its map says 2 GiB of entries
+    path.write_bytes(bytes(data))
+    with McapLog(path, max_chunk_bytes=1 << 20) as log:
+        assert [(a.name, a.data) for a in log.iter_attachments()] == [("small.txt", b"hello")]
+        described = log.report.describe()  # the first break is the one described
+        assert list(log.iter_metadata()) == [("small", {"k": "v"})]
+    assert "(opcode 0x09) of 2,097,2" in described and "raise SLEARN_MAX_CHUNK_MB" in described

@@ -141,7 +141,8 @@ def test_no_global_random_state_is_used():
 
 @pytest.mark.parametrize("kwargs, fragment", [
     ({"condition": "wobble"}, "condition 'wobble' is unknown"),
-    ({"condition": "simple", "trials": 0}, "trials must be an integer >= 1"),
+    ({"condition": "simple", "trials": 0}, "trials must be an integer from 1 to 10,000,000"),
+    ({"condition": "simple", "trials": 10**12}, "trials must be an integer from 1 to 10,000,000"),
     ({"condition": "simple", "trials": 2.5}, "trials must be an integer"),
     ({"condition": "simple", "seed": -1}, "seed must be an integer >= 0"),
     ({"condition": "reversal", "trials": 100}, "switch would never happen"),

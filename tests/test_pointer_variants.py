@@ -151,7 +151,7 @@ def test_variants_are_deterministic():
     ({"condition": "error+wobble"}, "condition 'error+wobble' is unknown"),
     ({"condition": "error+error"}, "distinct effects"),
     ({"condition": "simple+error"}, "is unknown"),
-    ({"condition": "simple", "bins": 5}, "bins must be an integer in 10..720"),
+    ({"condition": "simple", "bins": 5}, "bins must be an integer from 10 to 720"),
     ({"condition": "simple", "bins": 36.0}, "bins must be an integer"),
     ({"condition": "error", "switch_back_trial": 7000}, "ends a switch; add reversal or scramble"),
     ({"condition": "reversal", "switch_back_trial": 5000}, "switch_back_trial must be an integer >= 5001"),

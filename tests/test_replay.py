@@ -17,7 +17,7 @@ from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
 from slearn.replay.evaluate import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
                                     iter_evaluation, replay_logs)
-from slearn.replay.metrics import nice_window
+from slearn.replay.windows import data_window
 from slearn.spec import pointer_spec
 from slearn.stream import Episode
 from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
@@ -97,11 +97,11 @@ def test_online_learns_and_frozen_does_not():
     assert online.episodes[0].curve.accuracy()[-1] > 0.95
 
 
-def test_windows_add_up_to_the_episode_and_default_to_about_fifty():
+def test_windows_add_up_to_the_episode_and_hold_enough_events():
     library, _ = trained(seeds=(0,), trials=1000)
     result = evaluate(library, held_out(pointer_episode(trials=1234, seed=3)), pointer_vocabulary())
     curve = result.episodes[0].curve
-    assert result.window == nice_window(1234) == 50
+    assert result.window == data_window(1234, 1234) == 100  # at least 100 events a window
     assert curve.events.sum() == result.totals.events == 1234
     assert curve.correct.sum() == result.totals.correct
     assert curve.start[-1] == 1200 and curve.events[-1] == 34
@@ -452,7 +452,7 @@ def test_plot_draws_one_line_per_channel_for_one_log_and_per_log_for_several():
     assert [label for label, *_ in _lines(one)][:2] == ["a", "b"]
     several = evaluate(library, held_out(two_channel_episode(vocabulary, 300, 1),
                                          two_channel_episode(vocabulary, 300, 2)), vocabulary)
-    assert [label for label, *_ in _lines(several)] == ["episode0", "episode1"]
+    assert [label for label, *_ in _lines(several)] == ["episode0", "episode1", "all"]
 
 
 def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path, monkeypatch):
@@ -475,15 +475,15 @@ def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path,
 def test_step_times_match_the_steps_of_every_mode(tmp_path, mode, tick_ns):
     from dataclasses import replace
 
-    from slearn.replay.annotate import step_times
-    from slearn.serialize import read_episodes
+    from slearn.serialize import iter_step_times, read_episodes
 
     path = tmp_path / "p.mcap"
     record_pointer(PointerConfig("simple", trials=200, seed=1), path)
     spec = replace(pointer_spec(), mode=mode, tick_ns=tick_ns)
     vocabulary = Vocabulary()
     [(_, episode, _)] = list(read_episodes([path], spec, vocabulary))
-    times = step_times(str(path), spec, vocabulary)
+    [(name, times)] = list(iter_step_times(str(path), spec, vocabulary))
+    assert name == str(path)
     assert len(times) == len(episode)
     assert times[0] == 0 and (np.diff(times) > 0).all()
     if mode != "tick":

@@ -129,10 +129,10 @@ def test_truncated_log_exits_3_after_scoring_what_was_salvaged(files, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["{test}"], "MCAP log, not a library"),
+    (["{test}"], "is a log, not a library"),
     (["{library}"], "at least one log"),
     (["{library}", "{test}", "--spec", "{spec}"], "carries the spec"),
-    (["{test}", "{test}"], "MCAP log, not a library"),
+    (["{test}", "{test}"], "is a log, not a library"),
     (["{spec}", "{test}"], "pointer.toml"),
     (["{library}", "{folder}/missing.mcap"], "missing.mcap: no such log file"),
     (["{library}", "{test}", "{test}", "--write-mcap", "{folder}/x.mcap"], "existing folder"),

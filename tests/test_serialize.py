@@ -235,3 +235,95 @@ def test_tick_mode_refuses_absurd_tick_counts(tmp_path):
         {"topic": "/s", "field": "v", "role": "observation"}]})
     with pytest.raises(InputError, match="more than .* ticks.*log time 0"):
         episodes([path], spec)
+
+
+def _warnings_of(call):
+    import warnings
+
+    from slearn.errors import DataWarning
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = call()
+    return result, [str(w.message) for w in caught if issubclass(w.category, DataWarning)]
+
+
+def test_change_detection_is_per_entry(tmp_path):
+    path = write_log(tmp_path / "m.mcap", MODES_LOG)
+    spec = Spec.from_dict({"channel": [
+        {"topic": "/a", "field": "c", "role": "action"},
+        {"topic": "/s", "field": "v", "role": "observation", "values": [1, 2], "mode": "change"}]})
+    [episode], vocabulary = episodes([path], spec)
+    x, s1, s2 = (vocabulary.get_symbol(*k) for k in (("/a", "x"), ("/s", 1), ("/s", 2)))
+    # every command stays an event; the repeated readings (t=20, t=50) are dropped
+    assert episode.steps() == [((), (s1,)), ((x,), ()), ((x,), (s2,))]
+
+
+TICK_B = [m for i in range(20) for m in (("/s", i * 100, {"v": i % 3}), ("/a", i * 100 + 50, {"c": "LR"[i % 2]}))]
+
+
+def test_tick_phase_samples_after_the_command_and_a_bad_phase_is_warned_about(tmp_path):
+    # a controller that reads at k*100 and commands at k*100+50: the reading after
+    # command k is the one at (k+1)*100
+    path = write_log(tmp_path / "b.mcap", TICK_B)
+    base = {"mode": "tick", "tick_ns": 100, "channel": [
+        {"topic": "/a", "field": "c", "role": "action"},
+        {"topic": "/s", "field": "v", "role": "observation", "values": [0, 1, 2]}]}
+    (late, _), late_warnings = _warnings_of(lambda: episodes([path], Spec.from_dict(base)))
+    [warning] = late_warnings
+    assert "tick mode: 18 of 19 commands are paired with a reading logged before them or after " \
+           "the next command" in warning and "phase_ms" in warning
+    ([good], vocabulary), none = _warnings_of(lambda: episodes([path], Spec.from_dict({**base, "phase_ns": 50})))
+    assert none == []
+    names = {vocabulary.get_symbol("/a", "L"): "L", vocabulary.get_symbol("/a", "R"): "R"}
+    steps = [(tuple(names[a] for a in acts), tuple(vocabulary.name(o)[1] for o in obs))
+             for acts, obs in good.steps()]
+    # step k pairs command k-2 (issued at (k-2)*100+50) with the reading at (k-1)*100
+    assert steps[:4] == [((), (0,)), ((), (0,)), (("L",), (1,)), (("R",), (2,))]
+
+
+def test_values_outside_the_range_are_counted_and_clip_accepts_them(tmp_path):
+    path = write_log(tmp_path / "r.mcap", [("/s", i, {"v": i * 0.5}) for i in range(10)])
+    entry = {"topic": "/s", "field": "v", "role": "observation", "range": [0, 3.14], "count": 4}
+    _, [range_warning, *_] = _warnings_of(lambda: episodes([path], Spec.from_dict({"channel": [entry]})))
+    assert range_warning.startswith("channel '/s': 3 of 10 values (30.0 %) in 1 log(s) fell outside "
+                                    "range [0, 3.14]") and "clip = true" in range_warning
+    _, warned = _warnings_of(lambda: episodes([path], Spec.from_dict({"channel": [{**entry, "clip": True}]})))
+    assert not any("outside" in w for w in warned)
+
+
+def test_episode_markers_split_one_file_into_episodes(tmp_path):
+    from slearn.episodes import EPISODE_TOPIC, split_episode_name
+
+    messages = [("/s", 0, {"v": 9})]
+    for k in range(3):
+        messages += [(EPISODE_TOPIC, 1000 * (k + 1), {"episode": k}),
+                     ("/s", 1000 * (k + 1), {"v": k}), ("/s", 1000 * (k + 1) + 10, {"v": k + 1})]
+    path = write_log(tmp_path / "many.mcap", messages)
+    spec = Spec.from_dict({"channel": [{"topic": "/s", "field": "v", "role": "observation"}]})
+    vocabulary = Vocabulary()
+    read = list(read_episodes([path], spec, vocabulary))
+    assert [name for name, _, _ in read] == [str(path), f"{path}#0", f"{path}#1", f"{path}#2"]
+    assert [[vocabulary.name(o)[1] for _, obs in e.steps() for o in obs] for _, e, _ in read] == \
+        [[9], [0, 1], [1, 2], [2, 3]]
+    assert split_episode_name(f"{path}#2") == (str(path), 2)
+    assert split_episode_name(str(path)) == (str(path), None)
+
+
+def test_a_time_window_reads_part_of_each_log(tmp_path):
+    from slearn.errors import InputError
+    from slearn.slicing import HELDOUT, time_slice
+
+    path = write_log(tmp_path / "w.mcap", [("/s", 1_000_000_000 + i * 100_000_000, {"v": i}) for i in range(10)])
+    spec = Spec.from_dict({"channel": [{"topic": "/s", "field": "v", "role": "observation"}]})
+
+    def values(window):
+        vocabulary = Vocabulary()
+        [(_, episode, _)] = list(read_episodes([path], spec, vocabulary, window=window))
+        return [vocabulary.name(o)[1] for _, obs in episode.steps() for o in obs]
+
+    assert values(time_slice("0.2", "0.5")) == [2, 3, 4]
+    assert values(time_slice(split=0.7)) == list(range(7))
+    assert values(time_slice(split=0.7, part=HELDOUT)) == [7, 8, 9]
+    assert values(time_slice(start="1970-01-01T00:00:01.8Z")) == [8, 9]
+    with pytest.raises(InputError, match="leaves no time of this log"):
+        values(time_slice(start="5"))

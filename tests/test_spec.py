@@ -155,7 +155,7 @@ ENTRY = '[[channel]]\ntopic = "/t"\nfield = "x"\nrole = "observation"\n'
     (ENTRY + "range = [0, 1]\n", "`range` needs `count`"),
     (ENTRY + "range = [1, 0]\ncount = 2\n", "low < high"),
     (ENTRY + "width = 1\nrange = [0, 1]\ncount = 2\n", "choose one binning"),
-    (ENTRY + "width = 0\n", "`width` must be a positive number"),
+    (ENTRY + "width = 0\n", "`width` must be a number from 1e-300 to 1e\\+300, not 0"),
     (ENTRY + "width = 1\nwrap = true\n", "`wrap` needs `range`"),
     (ENTRY + "edges = [3, 1]\n", "increasing"),
     (ENTRY + "values = ['a']\ncount = 3\n", "cannot be combined|needs one of"),
@@ -187,3 +187,79 @@ def test_resolve_spec(tmp_path):
     assert resolve_spec(None, ["/t:x:action"]).channels[0].role == "action"
     with pytest.raises(SpecError, match="not both"):
         resolve_spec(path, ["/t:x:action"])
+
+
+def test_every_message_is_an_event_unless_the_spec_asks_for_change():
+    spec = Spec.from_dict({"channel": [{"topic": "/c", "field": "data", "role": "action"},
+                                       {"topic": "/s", "field": "v", "role": "observation",
+                                        "mode": "change"}]})
+    assert spec.mode == "message"
+    assert [spec.channel_mode(i) for i in range(2)] == ["message", "change"]
+    assert spec.to_dict()["channel"][1]["mode"] == "change" and "mode" not in spec.to_dict()["channel"][0]
+    assert Spec.from_dict(spec.to_dict()) == spec
+    with pytest.raises(SpecError, match="an entry's mode must be"):
+        Spec.from_dict({"channel": [{"topic": "/c", "role": "action", "mode": "tick"}]})
+    with pytest.raises(SpecError, match="drop the entries' own `mode`"):
+        Spec.from_dict({"mode": "tick", "tick_ms": 10,
+                        "channel": [{"topic": "/c", "role": "action", "mode": "change"}]})
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"phase_ms": 10}, "phase_ms is for mode"),
+    ({"mode": "tick", "tick_ms": 100, "phase_ms": 150}, "at most one tick"),
+    ({"mode": "tick", "tick_ms": 100, "phase_ms": 0}, "above 0"),
+])
+def test_the_tick_phase_lies_within_a_tick(extra, message):
+    with pytest.raises(SpecError, match=message):
+        Spec.from_dict({**extra, "channel": [{"topic": "/c", "role": "action"}]})
+    ok = Spec.from_dict({"mode": "tick", "tick_ms": 100, "phase_ms": 50,
+                         "channel": [{"topic": "/c", "role": "action"}]})
+    assert ok.phase_ns == 50_000_000 and Spec.from_dict(ok.to_dict()) == ok
+
+
+def test_bins_read_as_value_ranges_and_know_what_falls_outside():
+    angle = Bins(range=(0.0, 2 * math.pi), count=36, wrap=True, unit="rad")
+    assert [angle.label(k) for k in (0, 5, 35)] == ["[0°, 10°)", "[50°, 60°)", "[350°, 360°)"]
+    small = Bins(range=(-math.pi / 18 * 9, math.pi / 18 * 9), count=9)
+    assert small.label(4) == "[-0.17, 0.17)"
+    assert Bins(edges=(-0.5, 0.5)).label(0) == "[-inf, -0.5)"
+    assert Bins(range=(0.0, 2.0), count=4, unit="m").label(1) == "[0.5, 1) m"
+    bounded = Bins(range=(0.0, 3.14), count=4)
+    assert bounded.outside(6.0) and bounded.outside(-0.1) and not bounded.outside(3.14)
+    assert not Bins(range=(0.0, 3.14), count=4, clip=True).outside(6.0)
+    assert not angle.outside(20.0) and not Bins(edges=(1.0,)).outside(99.0)
+    spec = Spec.from_dict({"channel": [{"topic": "/j", "field": "p", "role": "observation",
+                                        "range": [0, 6.283185307179586], "count": 36, "unit": "rad"}]})
+    assert spec.value_label("/j", 5) == "[50°, 60°)" and spec.value_label("/other", 5) == "5"
+    with pytest.raises(SpecError, match="`clip` goes with `range`"):
+        Spec.from_dict({"channel": [{"topic": "/j", "role": "observation", "width": 1, "clip": True}]})
+
+
+def test_the_vocabulary_labels_bins_as_value_ranges():
+    from slearn.serialize import prepare_vocabulary
+
+    spec = spec_from_options(["/j:p:observation:range=[0,360],count=36,unit=deg", "/c:d:action"])
+    vocabulary = prepare_vocabulary(spec, Vocabulary())
+    assert vocabulary.label(vocabulary.get_symbol("/j", 5)) == "/j=[50°, 60°)"
+    assert vocabulary.label(vocabulary.symbol("/c", 1)) == "/c=1"
+
+
+def test_shorthand_takes_lists_in_brackets_and_every_key():
+    entry = parse_channel_option("/j:position[name=a]:observation:range=[0,6.28],count=36,wrap=true,"
+                                 "unit=rad,mode=change")
+    assert entry == {"topic": "/j", "field": "position[name=a]", "role": "observation",
+                     "range": [0, 6.28], "count": 36, "wrap": True, "unit": "rad", "mode": "change"}
+    assert parse_channel_option("/c:data:action:values=[-1,1]")["values"] == [-1, 1]
+    assert parse_channel_option("/c:data:action:values=[L, R]")["values"] == ["L", "R"]
+    with pytest.raises(SpecError, match="key=value"):
+        parse_channel_option("/c:data:action:count")
+
+
+def test_a_spec_without_actions_is_warned_about_and_topics_can_be_selected():
+    spec = spec_from_options(["/a:x:observation", "/b:y:observation"])
+    [warning] = spec.warnings()
+    assert "no action channel" in warning
+    assert spec_from_options(["/a:x:action"]).warnings() == []
+    assert spec.only_topics(["/b"]).topics() == ["/b"]
+    with pytest.raises(SpecError, match="--topics '/c' is not a topic"):
+        spec.only_topics(["/c"])

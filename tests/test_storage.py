@@ -207,8 +207,8 @@ def test_a_write_that_breaks_midway_does_not_touch_the_existing_file(tmp_path, m
     save(path, learned())
     before = path.read_bytes()
 
-    def disk_full(tmp, tables, metadata):
-        tmp.write_bytes(b"PAR1 half a file")
+    def disk_full(sink, tables, metadata):
+        sink.write(b"PAR1 half a file")
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(storage, "_write_parquet", disk_full)
@@ -223,7 +223,7 @@ def test_a_written_file_that_does_not_read_back_is_not_kept(tmp_path, monkeypatc
     path = tmp_path / "lib.parquet"
     save(path, learned())
     before = path.read_bytes()
-    monkeypatch.setattr(storage, "_write_parquet", lambda tmp, tables, metadata: tmp.write_bytes(b"junk"))
+    monkeypatch.setattr(storage, "_write_parquet", lambda sink, tables, metadata: sink.write(b"junk"))
     with pytest.raises(LibraryFormatError, match="does not read back"):
         save(path, learned(seed=1), overwrite=True)
     assert path.read_bytes() == before and os.listdir(tmp_path) == ["lib.parquet"]

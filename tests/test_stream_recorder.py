@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
@@ -39,13 +40,17 @@ def _metadata(path):
 def test_tokens_one_episode_per_line_with_named_channels_and_roles(tmp_path):
     src = _write(tmp_path, "seq.txt", "# pointer\npos=3 cmd=R pos=4 cmd=L pos=3\n\npos=1 cmd=L pos=36\n")
     summary = convert_stream(src, tmp_path / "out.mcap", roles={"cmd": "action"})
-    assert summary.format == "tokens"
-    assert summary.paths == [str(tmp_path / "out-00000.mcap"), str(tmp_path / "out-00001.mcap")]
+    assert summary.format == "tokens" and summary.episodes == 2
+    assert summary.paths == [str(tmp_path / "out.mcap")]
     assert summary.channels == {"pos": "observation", "cmd": "action"}
     assert _steps(summary.paths, stream_spec(summary)) == [
         [([], [3]), (["R"], [4]), (["L"], [3])],
         [([], [1]), (["L"], [36])]]
-    assert _metadata(summary.paths[1])["slearn.stream"]["first_line"] == "4"
+    assert _metadata(summary.paths[0])["slearn.stream"]["sequences"] == "2"
+    with open(summary.paths[0], "rb") as f:
+        markers = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages()
+                   if c.topic == "/slearn/episode"]
+    assert markers == [{"episode": 0, "name": "seq.txt:2"}, {"episode": 1, "name": "seq.txt:4"}]
 
 
 def test_per_file_makes_one_episode_that_continues_in_time(tmp_path):
@@ -60,11 +65,10 @@ def test_spmf_itemsets_share_a_tick_and_item_names_apply(tmp_path):
                  "2 -1 1 -1 3 4 -1 -2\n5 -1 <7> 6 -1 -2\n")
     assert detect_format(src) == "spmf"
     summary = convert_stream(src, tmp_path / "db.mcap", roles={"cmd": "action"})
-    assert len(summary.paths) == 2
-    spec = stream_spec(summary)
-    first, second = _steps(summary.paths[:1], spec), _steps(summary.paths[1:], spec)
-    assert first == [[([], [2]), (["R"], [3, 4])]]
-    assert second == [[([], [5]), ([], [6])]]
+    assert len(summary.paths) == 1 and summary.episodes == 2
+    first, second = _steps(summary.paths, stream_spec(summary))
+    assert first == [([], [2]), (["R"], [3, 4])]
+    assert second == [([], [5]), ([], [6])]
 
 
 def test_spmf_line_end_also_ends_a_sequence(tmp_path):
@@ -112,12 +116,12 @@ def test_malformed_input_names_the_line(tmp_path, name, text, message):
 
 def test_existing_outputs_are_refused_before_anything_is_written(tmp_path):
     src = _write(tmp_path, "s.txt", "a\nb\n")
-    (tmp_path / "o-00001.mcap").write_bytes(b"keep")
+    (tmp_path / "o.mcap").write_bytes(b"keep")
     with pytest.raises(InputError, match="already exists"):
         convert_stream(src, tmp_path / "o.mcap")
-    assert not (tmp_path / "o-00000.mcap").exists()
+    assert (tmp_path / "o.mcap").read_bytes() == b"keep"
     convert_stream(src, tmp_path / "o.mcap", overwrite=True)
-    assert (tmp_path / "o-00001.mcap").read_bytes() != b"keep"
+    assert (tmp_path / "o.mcap").read_bytes() != b"keep"
 
 
 def test_role_option_for_an_unknown_channel_is_an_error(tmp_path):
@@ -160,12 +164,41 @@ def test_converted_stream_learns_and_replays_with_the_cli(tmp_path):
     recorded = CliRunner().invoke(main, ["record", "stream", str(src), "-o", str(out), "--role",
                                          "cmd=action", "--spec-out", str(tmp_path / "spec.toml")])
     assert recorded.exit_code == 0, recorded.output
-    episodes = sorted(str(p) for p in out.iterdir())
-    assert len(episodes) == 4
+    [log] = [str(p) for p in out.iterdir()]
     library = str(tmp_path / "walks.parquet")
-    learned = CliRunner().invoke(main, ["learn", *episodes[:3], "--spec", str(tmp_path / "spec.toml"),
-                                        "-o", library, "-q"])
+    # the four sequences lie one after the other: the first 75 % of the time holds three
+    learned = CliRunner().invoke(main, ["learn", log, "--spec", str(tmp_path / "spec.toml"),
+                                        "-o", library, "-q", "--split", "0.75", "--json"])
     assert learned.exit_code == 0, learned.output
-    replayed = CliRunner().invoke(main, ["replay", library, episodes[3], "--json"])
+    assert json.loads(learned.stdout)["episodes"] == 3
+    replayed = CliRunner().invoke(main, ["replay", library, log, "--split", "0.75", "--json"])
     assert replayed.exit_code == 0, replayed.output
-    assert json.loads(replayed.stdout)["totals"]["accuracy"] == 1.0
+    doc = json.loads(replayed.stdout)
+    assert [e["name"] for e in doc["episodes"]] == [f"{log}#3"]
+    assert doc["totals"]["accuracy"] == 1.0 and doc["baselines"]["fit"] == "training"
+
+
+def test_a_thousand_sequences_go_into_one_file_and_learn_as_a_thousand_episodes(tmp_path):
+    rng = np.random.default_rng(0)
+    lines = []
+    for _ in range(1000):
+        pos, tokens = int(rng.integers(0, 10)), []
+        for _ in range(int(rng.integers(2, 8))):
+            step = int(rng.choice([-1, 1]))
+            tokens += [f"pos={pos}", f"cmd={'LR'[step > 0]}"]
+            pos = (pos + step) % 10
+        lines.append(" ".join(tokens + [f"pos={pos}"]))
+    src = _write(tmp_path, "db.txt", "\n".join(lines) + "\n")
+    out, spec_path, library = tmp_path / "db.mcap", tmp_path / "db.toml", tmp_path / "db.parquet"
+    recorded = CliRunner().invoke(main, ["record", "stream", str(src), "-o", str(out), "--role",
+                                         "cmd=action", "--spec-out", str(spec_path), "--json"])
+    assert recorded.exit_code == 0, recorded.output
+    summary = json.loads(recorded.stdout)
+    assert summary["paths"] == [str(out)] and summary["episodes"] == 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["db.mcap", "db.toml", "db.txt"]
+    learned = CliRunner().invoke(main, ["learn", str(out), "--spec", str(spec_path), "-o",
+                                        str(library), "--json"])
+    assert learned.exit_code == 0, learned.output
+    doc = json.loads(learned.stdout)
+    assert doc["episodes"] == 1000
+    assert doc["steps"] == sum(line.count("cmd=") + 1 for line in lines)

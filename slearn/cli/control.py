@@ -10,31 +10,32 @@ import click
 
 from slearn.control import (DEFAULT_BUDGET, OFFLINE_TRIALS, ControlConfig, ControlResult, Summary,
                             run_control, write_control_mcap)
-from slearn.errors import InputError
+from slearn.cli.limits import MAX_GOALS, MAX_STEPS, MAX_TRIALS, FiniteFloat
+from slearn.files import check_output
 from slearn.planner import PlannerSettings
 from slearn.recorders.pointer import CONDITIONS, N_BINS
 
 
 @click.command("control")
-@click.option("--library", "library_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--library", "library_path", type=click.Path(path_type=Path),
               default=None, help="Library to start from (default: learn one offline from random trials).")
 @click.option("--condition", type=click.Choice(CONDITIONS), required=True, help="Pointer dynamics.")
-@click.option("--goals", type=click.IntRange(1), default=100, show_default=True,
+@click.option("--goals", type=click.IntRange(1, MAX_GOALS), default=100, show_default=True,
               help="Random goals to reach one after another.")
 @click.option("--goal", type=click.IntRange(1, N_BINS), default=None,
               help="Reach this one position label instead.")
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of everything.")
-@click.option("--budget", type=click.IntRange(1), default=DEFAULT_BUDGET, show_default=True,
+@click.option("--budget", type=click.IntRange(1, MAX_STEPS), default=DEFAULT_BUDGET, show_default=True,
               help="Steps allowed per goal.")
-@click.option("--blocks", type=click.IntRange(1), default=10, show_default=True,
+@click.option("--blocks", type=click.IntRange(1, MAX_GOALS), default=10, show_default=True,
               help="Report the goals in this many blocks (the recovery curve).")
-@click.option("--switch-goal", type=click.IntRange(0), default=None,
+@click.option("--switch-goal", type=click.IntRange(0, MAX_GOALS), default=None,
               help="reversal/scramble: the goal at which the world changes (default: halfway).")
-@click.option("--trials", type=click.IntRange(1), default=OFFLINE_TRIALS, show_default=True,
+@click.option("--trials", type=click.IntRange(1, MAX_TRIALS), default=OFFLINE_TRIALS, show_default=True,
               help="Random trials learned offline without --library (and the Q-learner's data).")
 @click.option("--order", type=click.IntRange(0, 4), default=PlannerSettings.order, show_default=True,
               help="Steps of history in a planning state.")
-@click.option("--half-life", type=click.FloatRange(0), default=0.0, show_default=True,
+@click.option("--half-life", type=FiniteFloat(0), default=0.0, show_default=True,
               help="Fade library weights with this half-life in steps (0: never).")
 @click.option("--no-qlearning", is_flag=True, help="Skip the Q-learning baseline.")
 @click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -44,8 +45,8 @@ from slearn.recorders.pointer import CONDITIONS, N_BINS
 def command(library_path, condition, goals, goal, seed, budget, blocks, switch_goal, trials, order,
             half_life, no_qlearning, record_path, force, as_json):
     """Steer the simulated pointer to random goals in closed loop, learning as it goes."""
-    if record_path is not None and record_path.exists() and not force:
-        raise InputError(f"{record_path} already exists: pass --force to overwrite it")
+    if record_path is not None:
+        check_output(record_path, force, inputs=[library_path] if library_path else [])
     config = ControlConfig(condition, goals, seed, budget, goal, switch_goal, blocks, trials,
                            qlearning=not no_qlearning, planner=PlannerSettings(order=order, half_life=half_life))
     result = run_control(config, *_load(library_path))

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from slearn.cli.common import warnings_on_stderr
 from slearn.datasets.registry import BuildSummary, build_dataset, list_datasets
 
 
@@ -32,14 +33,17 @@ def list_command(as_json: bool) -> None:
 @click.argument("name")
 @click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="The folder to build the dataset in.")
-@click.option("--source", type=click.Path(dir_okay=False, path_type=Path),
-              help="pr2-sample: your own log, copied into heldout/.")
+@click.option("--source", type=click.Path(path_type=Path),
+              help="pr2-sample: your own log (MCAP, rosbag2 folder, .db3, .bag), split by "
+                   "time into train/ (the first 70 %) and heldout/ (the rest).")
 @click.option("--force", is_flag=True, help="Rebuild into a folder that is not empty.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
 def build(name: str, output: Path, source: Path | None, force: bool, as_json: bool) -> None:
-    """Build dataset NAME into a folder: train/ and heldout/ episodes, README.md, spec.toml."""
+    """Build dataset NAME into a folder: train/ and heldout/ episodes, README.md (with the
+    replay figures to expect), spec.toml and SHA256SUMS."""
     click.echo(f"building {name} in {output} ...", err=True)
-    summary = build_dataset(name, output, overwrite=force, source=source)
+    with warnings_on_stderr():
+        summary = build_dataset(name, output, overwrite=force, source=source)
     click.echo(json.dumps(summary.to_dict()) if as_json else _render(summary))
 
 
@@ -48,6 +52,7 @@ def _render(summary: BuildSummary) -> str:
     lines = [f"built {summary.name} in {summary.folder}: {counts['train']} train and "
              f"{counts['heldout']} held-out episodes",
              f"  card: {', '.join(summary.cards)}",
-             f"  spec: {', '.join(summary.specs)}"]
+             f"  spec: {', '.join(summary.specs)}",
+             f"  sha256: {summary.checksums}"]
     lines += [f"  note: {note}" for note in summary.notes]
     return "\n".join(lines)

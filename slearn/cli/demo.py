@@ -9,17 +9,21 @@ from pathlib import Path
 import click
 
 from slearn.demo import PAPER, RULES, DemoResult, run_demo
-from slearn.errors import InputError
+from slearn.files import claim_folder, release_folder, write_atomic
 from slearn.recorders.pointer import CONDITIONS
+
+# What the demo writes in its folder; a rerun after a killed run replaces these.
+OUTPUTS = ("logs", "libraries", "figure2.png", "summary.json")
 
 
 @click.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Folder for the logs, libraries, figure and summary (default: a new "
-                   "slearn-demo-<time> folder here).")
+                   "slearn-demo-<time> folder here). It must be new or empty, or left by a "
+                   "killed demo run (which is then redone).")
 @click.option("--seeds", type=click.IntRange(1, 100), default=5, show_default=True,
               help="Seeds to average over (first-seed, first-seed + 1, ...).")
-@click.option("--first-seed", type=int, default=0, show_default=True)
+@click.option("--first-seed", type=click.IntRange(0), default=0, show_default=True)
 @click.option("--trials", type=click.IntRange(1000, 1_000_000), default=10_000, show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON only.")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
@@ -37,6 +41,7 @@ def command(out_dir, seeds, first_seed, trials, as_json, quiet):
                    err=True)
     result = run_demo(out, list(range(first_seed, first_seed + seeds)), trials, on_condition=progress)
     _write_outputs(result)
+    release_folder(out)
     result.seconds = time.perf_counter() - started
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
@@ -45,17 +50,15 @@ def command(out_dir, seeds, first_seed, trials, as_json, quiet):
 
 
 def _fresh_folder(out_dir: str | None) -> Path:
+    """The output folder, claimed: a killed run leaves it marked, and a rerun redoes it."""
     if out_dir is None:
         base = Path(f"slearn-demo-{time.strftime('%Y%m%d-%H%M%S')}")
         out, n = base, 1
         while out.exists():
             n += 1
             out = Path(f"{base}-{n}")
-        return out
-    out = Path(out_dir)
-    if out.exists() and any(out.iterdir()):
-        raise InputError(f"{out}: folder is not empty; choose a new --out folder so nothing is overwritten")
-    return out
+        return claim_folder(out)
+    return claim_folder(out_dir, owned=OUTPUTS, advice="choose a new --out folder so nothing is overwritten")
 
 
 def _write_outputs(result: DemoResult) -> None:
@@ -65,9 +68,7 @@ def _write_outputs(result: DemoResult) -> None:
     result.figure_path = str(out / "figure2.png")
     plot_figure2(result, result.figure_path)
     result.summary_path = str(out / "summary.json")
-    tmp = out / ".summary.json.tmp"
-    tmp.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
-    tmp.replace(result.summary_path)
+    write_atomic(result.summary_path, json.dumps(result.to_dict(), indent=2) + "\n")
 
 
 def render_table(result: DemoResult) -> str:

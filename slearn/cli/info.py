@@ -1,15 +1,15 @@
-"""``slearn info``: what is in MCAP logs (and, later, pattern libraries)."""
+"""``slearn info``: what is in logs (MCAP, rosbag2 folders, .db3, .bag) and pattern libraries."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
 from slearn.cli import EXIT_TRUNCATED
-from slearn.errors import InputError
-from slearn.info import ChannelProfile, LogProfile, describe, suggest_spec
+from slearn.cli.common import make_slice, slice_options, topic_list
+from slearn.files import check_output, write_atomic
+from slearn.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time, suggest_spec
 
 
 def _fmt_value(value) -> str:
@@ -18,27 +18,50 @@ def _fmt_value(value) -> str:
     return repr(value) if isinstance(value, str) else str(value)
 
 
+def _field_line(info: FieldInfo) -> str:
+    if info.constant:
+        values = f"constant {_fmt_value(info.distinct[0])}"
+    else:
+        spread = f"{_fmt_value(info.min)} .. {_fmt_value(info.max)}, " if info.min is not None else ""
+        distinct = f"{info.n_distinct} values" if info.n_distinct is not None else "many values"
+        values = f"{spread}{distinct}, changes {info.changes}x; e.g. " + \
+            ", ".join(_fmt_value(v) for v in info.examples)
+    return f"        {info.path:<50} {info.type:<6} {values}"
+
+
 def _channel_lines(channel: ChannelProfile, show_fields: bool) -> list[str]:
-    rate = f"{channel.rate_hz:8.1f} Hz" if channel.rate_hz else "       - Hz"
+    if channel.rate_hz:
+        rate = f"{channel.rate_hz:8.1f} Hz"
+    elif channel.burst:
+        rate = f"burst in {channel.span_ns / 1e6:.3f} ms"
+    else:
+        rate = "       - Hz"
     schema = channel.schema or "(schemaless)"
     lines = [f"  {channel.id:>4}  {channel.topic:<32} {schema:<34} "
              f"{channel.message_encoding:<9} {channel.count:>8} {rate}"]
     if channel.decode_error:
         lines.append(f"        cannot be decoded: {channel.decode_error}")
-    elif show_fields:
-        for info in channel.fields:
-            examples = ", ".join(_fmt_value(v) for v in info.examples)
-            lines.append(f"        {info.path:<50} {info.type:<6} {examples}")
+    elif show_fields and channel.fields:
+        sampled = f" (statistics of {channel.decoded:,} decoded messages)" \
+            if channel.decoded < channel.count else ""
+        lines.append(f"        {len(channel.fields)} fields{sampled}:")
+        lines += [_field_line(info) for info in channel.fields]
         if channel.more_fields:
-            lines.append(f"        ... {channel.more_fields} more fields")
+            lines.append(f"        ... {channel.more_fields} more fields not listed")
     return lines
 
 
 def _render(profile: LogProfile, show_fields: bool) -> str:
+    span = "no messages"
+    if profile.start_ns is not None:
+        span = (f"{iso_time(profile.start_ns)} ({profile.start_ns / 1e9:.3f} s) to "
+                f"{iso_time(profile.end_ns)} ({profile.end_ns / 1e9:.3f} s)")
+    window = f", {profile.window}" if profile.window else ""
     lines = [f"{profile.path}",
              f"  profile {profile.profile or '-'}, library {profile.library or '-'}, "
              f"{profile.size_bytes:,} bytes, {profile.n_messages:,} messages, "
-             f"{profile.duration_s:.3f} s",
+             f"{profile.duration_s:.3f} s{window}",
+             f"  {span}",
              f"  {'id':>4}  {'topic':<32} {'schema':<34} {'encoding':<9} {'count':>8} {'rate':>11}"]
     for channel in profile.channels:
         lines += _channel_lines(channel, show_fields)
@@ -58,40 +81,36 @@ def _as_text(result, show_fields: bool) -> str:
     return json.dumps(_as_dict(result), indent=2, default=str)
 
 
-def _write_new(path: str, text: str, force: bool) -> None:
-    target = Path(path)
-    if target.exists() and not force:
-        raise InputError(f"{path} exists: use --force to overwrite it")
-    try:
-        target.write_text(text, encoding="utf-8")
-    except OSError as err:
-        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
-
-
 @click.command("info")
-@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
-@click.option("--fields/--no-fields", default=True, help="List decodable scalar fields.")
+@click.option("--fields/--no-fields", default=True, help="List every field with its values.")
 @click.option("--suggest-spec", "spec_out", type=click.Path(dir_okay=False),
-              help="Write a commented TOML spec skeleton to this file.")
+              help="Write a spec (TOML) that learns the logs as written: roles, fields and bins "
+                   "guessed from the data, the reasons in comments.")
 @click.option("--force", is_flag=True, help="Overwrite the --suggest-spec file.")
+@slice_options(split=False)
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: bool,
-            spec_out: str | None, force: bool) -> None:
-    """Show profile, duration, channels, counts, rates and fields of MCAP logs.
+            spec_out: str | None, force: bool, start: str | None, end: str | None,
+            topics: str | None) -> None:
+    """Show the header, time span, channels, rates and every field of logs (MCAP files,
+    rosbag2 folders, .db3 and ROS 1 .bag files), or a pattern library (.parquet).
 
-    Exits 3 when a log is truncated (what could be read is still shown). Pattern
-    libraries (.parquet) are described by slearn.storage once it exists.
+    Exits 3 when a log is truncated (what could be read is still shown).
     """
-    results = [describe(path) for path in paths]
+    if spec_out:
+        check_output(spec_out, force, inputs=paths)
+    window = make_slice(start, end, None)
+    results = [describe(path, topic_list(topics), window) for path in paths]
     logs = [r for r in results if isinstance(r, LogProfile)]
     if as_json:
         click.echo(json.dumps({"files": [_as_dict(r) for r in results]}, indent=2, default=str))
     else:
         click.echo("\n\n".join(_as_text(r, fields) for r in results))
     if spec_out:
-        _write_new(spec_out, suggest_spec(logs), force)
-        click.echo(f"slearn: wrote spec skeleton {spec_out}", err=True)
+        write_atomic(spec_out, suggest_spec(logs), overwrite=force, inputs=paths)
+        click.echo(f"slearn: wrote spec {spec_out}", err=True)
     broken = [log for log in logs if log.report.truncated]
     for log in broken:
         click.echo(f"slearn: warning: {log.report.describe()}", err=True)

@@ -9,23 +9,27 @@ import warnings
 import click
 
 from slearn.cli import EXIT_TRUNCATED
+from slearn.cli.common import CHANNEL_HELP, make_slice, slice_options, topic_list, warnings_on_stderr
+from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
+from slearn.files import refuse_inputs
 from slearn.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
-from slearn.spec import MODES, Spec, load_spec, spec_from_options
+from slearn.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
 
 
 def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
-          tick_ms: float | None) -> Spec | None:
+          tick_ms: float | None, phase_ms: float | None) -> Spec | None:
     if spec_path and channels:
         raise click.UsageError("give --spec or --channel, not both")
     if spec_path:
-        if mode or tick_ms:
-            raise click.UsageError("--mode and --tick-ms go with --channel; a spec file has its own")
+        if mode or tick_ms or phase_ms:
+            raise click.UsageError("--mode, --tick-ms and --phase-ms go with --channel; a spec file "
+                                   "has its own")
         return load_spec(spec_path)
     if channels:
-        return spec_from_options(channels, mode or "change", tick_ms)
-    if mode or tick_ms:
-        raise click.UsageError("--mode and --tick-ms need --channel")
+        return spec_from_options(channels, mode or DEFAULT_MODE, tick_ms, phase_ms)
+    if mode or tick_ms or phase_ms:
+        raise click.UsageError("--mode, --tick-ms and --phase-ms need --channel")
     return None
 
 
@@ -52,36 +56,50 @@ def _progress(total: int):
 @click.option("--spec", "spec_path", type=click.Path(dir_okay=False),
               help="Channel spec (TOML); default: the pointer's channels for pointer logs.")
 @click.option("--channel", "channels", multiple=True, metavar="TOPIC:FIELD:ROLE[:OPTIONS]",
-              help="A spec entry (repeatable), e.g. /pointer/command:command:action.")
-@click.option("--mode", type=click.Choice(MODES), help="Event mode for --channel (default change).")
-@click.option("--tick-ms", type=float, help="Tick period for --mode tick.")
-@click.option("--max-length", type=click.IntRange(min=1), help="Longest pattern in steps [default 5].")
-@click.option("--max-patterns", type=click.IntRange(min=16),
+              help=CHANNEL_HELP)
+@click.option("--mode", type=click.Choice(MODES),
+              help="Event mode for --channel (default message: every message is an event).")
+@click.option("--tick-ms", type=FiniteFloat(1e-6, 86_400_000), help="Tick period for --mode tick.")
+@click.option("--phase-ms", type=FiniteFloat(0, 86_400_000),
+              help="--mode tick: sample the observations this long after each tick's commands "
+                   "(default one tick).")
+@click.option("--max-length", type=LENGTH, help="Longest pattern in steps [default 5].")
+@click.option("--max-patterns", type=PATTERNS,
               help="Forget the rarest, oldest patterns beyond this many [default: keep all].")
 @click.option("--scoring", type=click.Choice(SCORING_RULES),
               help="Scoring rule stored for predictors [default adaptive].")
-@click.option("--resume", type=click.Path(dir_okay=False),
+@click.option("--resume", type=click.Path(),
               help="Go on learning from this library (its spec, vocabulary and parameters).")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
+@slice_options(split=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
 @click.pass_context
 def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: str | None,
             channels: tuple[str, ...], mode: str | None, tick_ms: float | None,
-            max_length: int | None, max_patterns: int | None, scoring: str | None,
-            resume: str | None, force: bool, quiet: bool, as_json: bool) -> None:
-    """Learn a pattern library from MCAP LOGS (each file is an episode).
+            phase_ms: float | None, max_length: int | None, max_patterns: int | None, scoring: str | None,
+            resume: str | None, force: bool, start: str | None, end: str | None,
+            topics: str | None, split: float | None, quiet: bool, as_json: bool) -> None:
+    """Learn a pattern library from LOGS: MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files.
 
-    Exits 3 when a log was truncated: what could be read is learned and saved.
+    Each log is an episode (or several, when it marks episode boundaries). Exits 3 when a
+    log was truncated: what could be read is learned and saved.
     """
-    spec = _spec(spec_path, channels, mode, tick_ms)
+    spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
+    refuse_inputs(output, [spec_path] if spec_path else [])
+    if topics is not None:
+        if spec is None:
+            raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
+        spec = spec.only_topics(topic_list(topics))
+    window = make_slice(start, end, split)
     paths = expand_paths(list(logs))
     progress = not quiet and sys.stderr.isatty()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), warnings_on_stderr():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
         result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
                              max_patterns=max_patterns, scoring=scoring, overwrite=force,
-                             progress=progress, on_episode=_progress(len(paths)) if progress else None)
+                             progress=progress, on_episode=_progress(len(paths)) if progress else None,
+                             window=window)
     click.echo(json.dumps(result.to_dict()) if as_json else _summary(result))
     for report in result.truncated:
         click.echo(f"slearn: warning: {report.describe()}", err=True)

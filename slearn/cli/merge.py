@@ -10,7 +10,7 @@ from slearn.merge import merge_files
 
 
 @click.command("merge")
-@click.argument("libraries", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("libraries", nargs=-1, required=True, type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The merged library file (Parquet) to write.")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")

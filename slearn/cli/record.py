@@ -8,6 +8,8 @@ from pathlib import Path
 import click
 
 from slearn.errors import InputError
+from slearn.cli.limits import MAX_TRIALS, FiniteFloat
+from slearn.files import check_output
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.live import spec_toml, write_text
 from slearn.recorders.record_pointer import RecordSummary, record_pointer
@@ -23,14 +25,15 @@ def command() -> None:
 @command.command("pointer")
 @click.option("--condition", type=click.Choice(CONDITIONS), required=True,
               help="Pointer dynamics (the paper's six conditions).")
-@click.option("--trials", type=int, default=10_000, show_default=True, help="Number of trials.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of all randomness.")
-@click.option("--switch-trial", type=int, default=5_000, show_default=True,
+@click.option("--trials", type=click.IntRange(1, MAX_TRIALS), default=10_000, show_default=True,
+              help="Number of trials.")
+@click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of all randomness.")
+@click.option("--switch-trial", type=click.IntRange(0, MAX_TRIALS), default=5_000, show_default=True,
               help="First trial of the scramble or reversal.")
-@click.option("--error-deg", type=float, default=5.0, show_default=True,
-              help="Half-width of the uniform move error (error).")
-@click.option("--delay-prob", type=float, default=0.5, show_default=True,
-              help="Chance that a command is delayed by one trial (delay).")
+@click.option("--error-deg", type=FiniteFloat(), default=5.0, show_default=True,
+              help="Half-width of the uniform move error (error), 0 to 10.")
+@click.option("--delay-prob", type=FiniteFloat(), default=0.5, show_default=True,
+              help="Chance that a command is delayed by one trial (delay), 0 to 1.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The MCAP file to write.")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
@@ -38,8 +41,7 @@ def command() -> None:
 def pointer(condition: str, trials: int, seed: int, switch_trial: int, error_deg: float,
             delay_prob: float, output: Path, force: bool, as_json: bool) -> None:
     """Record one simulated rotary-pointer episode."""
-    if output.exists() and not force:
-        raise InputError(f"{output} already exists: pass --force to overwrite it")
+    check_output(output, force)
     config = PointerConfig(condition, trials, seed, switch_trial, error_deg, delay_prob)
     summary = record_pointer(config, output, overwrite=force)
     click.echo(json.dumps(summary.to_dict()) if as_json else _summary_line(summary))
@@ -64,8 +66,8 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
 @command.command("stream")
 @click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="The MCAP file (numbered STEM-00000.mcap... for several episodes), "
-                   "or an existing folder.")
+              help="The MCAP file (all episodes in one, marked on /slearn/episode), or an "
+                   "existing folder.")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True,
               help="Input format.")
 @click.option("--per-file", is_flag=True, help="Make the whole file one episode.")
@@ -73,7 +75,7 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
               help="Role of a channel: action or observation (default observation). Repeatable.")
 @click.option("--channel", default=DEFAULT_CHANNEL, show_default=True,
               help="Channel of tokens written without NAME=.")
-@click.option("--tick-ms", type=click.FloatRange(min=0, min_open=True), default=TICK_NS / 1e6,
+@click.option("--tick-ms", type=FiniteFloat(1e-6, 86_400_000), default=TICK_NS / 1e6,
               show_default=True, help="Log time between ticks of token and SPMF sequences.")
 @click.option("--spec-out", type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the TOML spec that learns the output.")
@@ -82,20 +84,21 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
 def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[str, ...],
            channel: str, tick_ms: float, spec_out: Path | None, force: bool,
            as_json: bool) -> None:
-    """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into MCAP episodes."""
-    if spec_out is not None and spec_out.exists() and not force:
-        raise InputError(f"{spec_out} already exists: pass --force to overwrite it")
+    """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into one MCAP file
+    holding each sequence as an episode."""
+    if spec_out is not None:
+        check_output(spec_out, force, inputs=[source, output])
     summary = convert_stream(source, output, fmt=fmt, per_file=per_file,
                              roles=_parse_roles(roles), channel=channel,
                              tick_ns=round(tick_ms * 1e6), overwrite=force)
     if spec_out is not None:
-        write_text(spec_out, spec_toml(stream_spec(summary), f"spec for {source.name}"))
+        write_text(spec_out, spec_toml(stream_spec(summary), f"spec for {source.name}"),
+                   overwrite=force, inputs=[source, *summary.paths])
     click.echo(json.dumps(summary.to_dict()) if as_json else _stream_line(summary))
 
 
 def _stream_line(summary: StreamSummary) -> str:
-    where = summary.paths[0] if len(summary.paths) == 1 else \
-        f"{len(summary.paths)} episodes ({summary.paths[0]} ... {summary.paths[-1]})"
+    where = f"{summary.paths[0]} ({summary.episodes:,} episode{'s' if summary.episodes > 1 else ''})"
     channels = ", ".join(f"{name} ({role})" for name, role in summary.channels.items())
     return (f"wrote {where}: {summary.format}, {summary.events} events on {channels}, "
             f"{summary.size_bytes / 1024:.0f} KiB")

@@ -4,18 +4,28 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
+import os
 
 import click
 
+from slearn.bags import is_log_path
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
+from slearn.cli.common import make_slice, slice_options, topic_list
+from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
+from slearn.files import check_output
 from slearn.library import DEFAULT_MAX_LENGTH
+from slearn.slicing import HELDOUT
 
 _MCAP_MAGIC = b"\x89MCAP"
 
 
-def _is_mcap(path: str) -> bool:
+def _is_log(path: str) -> bool:
+    """An MCAP file, a rosbag2 folder, a .db3 or a .bag (not a library)."""
+    if is_log_path(path):
+        return True
+    if not os.path.isfile(path):  # never open a FIFO: it would block
+        return path.endswith(".mcap")
     try:
         with open(path, "rb") as f:
             return f.read(5) == _MCAP_MAGIC
@@ -23,21 +33,22 @@ def _is_mcap(path: str) -> bool:
         return path.endswith(".mcap")
 
 
-def _check_outputs(paths: list[str | None], force: bool) -> None:
+def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
+    """Refuse outputs that exist (without --force) or are inputs (always), before replaying."""
     for path in paths:
-        if path and Path(path).exists() and not Path(path).is_dir() and not force:
-            raise InputError(f"{path} already exists: pass --force to overwrite it")
+        if path:
+            check_output(path, force, inputs)
 
 
 @click.command("replay")
-@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
 @click.option("--spec", "spec", type=click.Path(dir_okay=False),
               help="Channel spec (TOML): start from an empty library (implies --online).")
 @click.option("--window", type=click.IntRange(min=1), help="Steps per learning-curve window.")
-@click.option("--top-k", type=click.IntRange(min=1), default=3, show_default=True,
+@click.option("--top-k", type=click.IntRange(1, MAX_TOP_K), default=3, show_default=True,
               help="Ranked guesses that count for the top-k accuracy.")
-@click.option("--max-length", type=click.IntRange(min=1), default=DEFAULT_MAX_LENGTH,
+@click.option("--max-length", type=LENGTH, default=DEFAULT_MAX_LENGTH,
               show_default=True, help="Context length (steps) of an empty library (--spec).")
 @click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
               help="Training log for the baselines (repeat; default: the library's own inputs "
@@ -49,34 +60,42 @@ def _check_outputs(paths: list[str | None], force: bool) -> None:
               help="Write the log annotated with /slearn/prediction, /slearn/correct and "
                    "/slearn/surprise (a folder for several logs).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
-@click.option("--fail-under", type=click.FloatRange(0, 100),
+@click.option("--fail-under", type=FiniteFloat(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
+@slice_options(split=True)
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
             window: int | None, top_k: int, max_length: int,
             baseline_train: tuple[str, ...], as_json: bool, plot: str | None, report: str | None,
-            write_mcap: str | None, force: bool, fail_under: float | None, quiet: bool) -> None:
-    """Evaluate library LIB on held-out MCAP LOGS: slearn replay LIB LOGS...
+            write_mcap: str | None, force: bool, fail_under: float | None, start: str | None,
+            end: str | None, topics: str | None, split: float | None, quiet: bool) -> None:
+    """Evaluate library LIB on held-out LOGS: slearn replay LIB LOGS...
 
-    Frozen by default: the library predicts every observation from the history and the
-    actions issued, without learning. With --spec and no LIB, replay starts from an empty
-    library and learns online. Exits 3 when a log was truncated (what was salvaged is
-    scored), 4 when the accuracy is below --fail-under.
+    LOGS are MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files. Frozen by default: the
+    library predicts every observation from the history and the actions issued, without
+    learning. With --spec and no LIB, replay starts from an empty library and learns
+    online. With --split, each log's held-out part (after the share learn --split read) is
+    replayed. Every accuracy comes with a 95 % interval, next to the frequency, Markov and
+    persistence baselines. Exits 3 when a log was truncated (what was salvaged is scored),
+    4 when the accuracy is below --fail-under.
     """
     from slearn.replay.evaluate import replay_logs
 
     library, logs = _split(paths, spec)
-    _check_outputs([plot, report, write_mcap], force)
+    inputs = [*paths, *baseline_train, *([spec] if spec else [])]
+    _check_outputs([plot, report], force, inputs)
     if write_mcap:
-        from slearn.replay.annotate import annotated_paths
+        from slearn.replay.annotate import annotated_paths, layout_path
 
-        _check_outputs(annotated_paths(logs, write_mcap), force)
-    evaluation = replay_logs(logs, library=library, spec=spec, online=online, top_k=top_k,
-                             window=window, max_length=max_length,
+        targets = annotated_paths(logs, write_mcap)
+        _check_outputs([str(p) for t in targets for p in (t, layout_path(t))], force, inputs)
+    evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics), online=online,
+                             top_k=top_k, window=window, max_length=max_length,
                              baseline_logs=baseline_train or None,
-                             keep_outcomes=write_mcap is not None, progress=not quiet)
-    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet)
+                             keep_outcomes=write_mcap is not None, progress=not quiet,
+                             time_slice=make_slice(start, end, split, HELDOUT))
+    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
     _render(evaluation, outputs, as_json)
     for warning in evaluation.warnings:
         click.echo(f"slearn: warning: {warning}", err=True)
@@ -90,11 +109,32 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
         ctx.exit(EXIT_TRUNCATED)
 
 
+def _spec(spec: str | None, library: str | None, topics: str | None):
+    """The spec to pass on: the file, or with --topics the file's entries of those topics.
+
+    A saved library is replayed on the topics it learned; --topics must name them all.
+    """
+    wanted = topic_list(topics)
+    if wanted is None:
+        return spec
+    if library is not None:
+        from slearn.storage import read_info
+
+        learned = sorted({c["topic"] for c in (read_info(library).get("spec") or {}).get("channel", [])})
+        if learned and sorted(set(wanted)) != learned:
+            raise InputError(f"{library}: learned on topics {', '.join(learned)}; replay reads the "
+                             f"same topics (drop --topics, or learn a library on the ones you want)")
+        return spec
+    from slearn.spec import load_spec
+
+    return load_spec(spec).only_topics(wanted)
+
+
 def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[str]]:
-    """``(library or None, logs)``: with --spec, a first path that is MCAP means no library."""
-    if _is_mcap(paths[0]):
+    """``(library or None, logs)``: with --spec, a first path that is a log means no library."""
+    if _is_log(paths[0]):
         if spec is None:
-            raise InputError(f"{paths[0]} is an MCAP log, not a library: give the library first "
+            raise InputError(f"{paths[0]} is a log, not a library: give the library first "
                              "(slearn replay LIB LOGS...), or --spec FILE to start from an empty one")
         return None, list(paths)
     if len(paths) < 2:
@@ -104,7 +144,7 @@ def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[s
 
 
 def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap: str | None,
-                   force: bool, quiet: bool) -> dict:
+                   force: bool, quiet: bool, inputs: list[str]) -> dict:
     outputs: dict = {}
     if plot:
         from slearn.replay.plots import write_curves
@@ -119,7 +159,7 @@ def _write_outputs(evaluation, plot: str | None, report: str | None, write_mcap:
     if write_mcap:
         from slearn.replay.annotate import write_annotated
 
-        written = write_annotated(evaluation, write_mcap, overwrite=force)
+        written = write_annotated(evaluation, write_mcap, overwrite=force, inputs=inputs)
         outputs["annotated"] = [w.to_dict() for w in written]
     for kind, value in outputs.items():
         if not quiet:

@@ -1,0 +1,77 @@
+"""Options and output shared by several commands: time slices, topics, the --channel help,
+and warnings printed once each on stderr."""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from typing import Callable, Iterator
+
+import click
+
+from slearn.errors import DataWarning
+from slearn.slicing import TRAIN, TimeSlice, time_slice
+
+CHANNEL_HELP = (
+    "A spec entry (repeatable): TOPIC:FIELD:ROLE[:OPTIONS], OPTIONS as key=value separated by "
+    "commas, lists in brackets. Keys: values=[a,b] (categorical), range=[lo,hi] with count=N "
+    "(bins; wrap=true for angles, clip=true to accept values outside), width=W and origin=O, "
+    "edges=[...], quantiles=N, unit=rad|deg|..., mode=message|change, name=NAME. "
+    "E.g. /joint_states:position[name=j1]:observation:range=[0,6.2832],count=36,wrap=true,unit=rad")
+
+
+def slice_options(split: bool) -> Callable:
+    """Add --start, --end, --topics (and --split) to a command."""
+    options = [
+        click.option("--start", metavar="TIME",
+                     help="Read each log from this time on: seconds from its start (12.5) or an "
+                          "ISO 8601 time (2024-05-01T12:00:03Z)."),
+        click.option("--end", metavar="TIME",
+                     help="Read each log up to this time (excluded); as --start."),
+        click.option("--topics", metavar="T1,T2", help="Only these topics (comma-separated)."),
+    ]
+    if split:
+        options.append(click.option(
+            "--split", type=click.FloatRange(0, 1, min_open=True, max_open=True), metavar="SHARE",
+            help="Split each log's time: learn reads the first SHARE (0.7: 70 %), replay the "
+                 "rest, so the same logs give a training and a held-out part."))
+
+    def decorate(func: Callable) -> Callable:
+        for option in reversed(options):
+            func = option(func)
+        return func
+    return decorate
+
+
+def make_slice(start: str | None, end: str | None, split: float | None,
+               part: str = TRAIN) -> TimeSlice | None:
+    """The :class:`~slearn.slicing.TimeSlice` of the options (``None``: whole logs)."""
+    return time_slice(start, end, split, part)
+
+
+def topic_list(topics: str | None) -> list[str] | None:
+    """``--topics a,b`` as a list (``None`` when not given)."""
+    if topics is None:
+        return None
+    return [t.strip() for t in topics.split(",") if t.strip()]
+
+
+@contextlib.contextmanager
+def warnings_on_stderr() -> Iterator[None]:
+    """Print every :class:`~slearn.errors.DataWarning` raised inside once, as
+    ``slearn: warning: ...`` on stderr (after the block, so results come first)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataWarning)
+        try:
+            yield
+        finally:
+            shown = []
+            for item in caught:
+                text = str(item.message)
+                if issubclass(item.category, DataWarning) and text not in shown:
+                    shown.append(text)
+                elif not issubclass(item.category, DataWarning):
+                    warnings.warn_explicit(item.message, item.category, item.filename, item.lineno)
+            for text in shown:
+                click.echo(f"slearn: warning: {text}", err=True)
+

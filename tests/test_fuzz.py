@@ -1,0 +1,231 @@
+"""Fuzzing (hypothesis, bounded to about a minute): mutated MCAP logs, mutated library
+headers and footers, random spec values. Nothing may escape but a ``SlearnError``.
+
+``bench/fuzz.py`` runs the same classes at 10^4 cases each and measures hangs and memory.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import warnings
+
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+import mcap_bytes as mb
+from slearn.errors import SlearnError
+from slearn.info import describe_log
+from slearn.library import PatternLibrary
+from slearn.serialize import read_episodes
+from slearn.spec import Spec, parse_channel_option
+from slearn.storage import METADATA_KEY, describe, load_library
+from slearn.vocabulary import Vocabulary
+
+from test_storage import learned, save
+
+
+
+def fuzz(examples: int):
+    """Fixed examples (CI is reproducible), no deadline; the four tests take about 40 s."""
+    return settings(max_examples=examples, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+
+SPEC = Spec.from_dict({"mode": "change", "channel": [
+    {"topic": "/a", "field": "v", "role": "observation", "width": 0.5},
+    {"topic": "/b", "field": "c", "role": "action"}]})
+
+
+def base_logs() -> list[bytes]:
+    """Small valid logs in several layouts (chunked zstd / lz4 / none, unchunked)."""
+    records = []
+    for t in range(40):
+        records.append(mb.message(t, b'{"v": %d.5}' % (t % 7)))
+        records.append(mb.message(t, b'{"c": "%s"}' % b"LR"[t % 2:t % 2 + 1], channel_id=2))
+    groups = [b"".join(records[i:i + 10]) for i in range(0, len(records), 10)]
+    b_channel = mb.channel(2, "/b")
+    logs = [mb.log(b_channel, *(mb.chunk(g, c) for g in groups)) for c in ("zstd", "lz4", "")]
+    return logs + [mb.log(b_channel, *records)]
+
+
+BASES = base_logs()
+
+
+def record_bounds(data: bytes) -> list[tuple[int, int]]:
+    """Top-level records after the magic, as ``(start, end)``."""
+    bounds, pos = [], 8
+    while pos + 9 <= len(data):
+        end = pos + 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+        if end > len(data):
+            break
+        bounds.append((pos, end))
+        pos = end
+    return bounds
+
+
+@st.composite
+def mutated_log(draw) -> bytes:
+    data = bytearray(draw(st.sampled_from(BASES)))
+    for _ in range(draw(st.integers(1, 4))):
+        if len(data) < 9:
+            break
+        bounds = record_bounds(bytes(data)) or [(8, len(data))]
+        kind = draw(st.sampled_from(["flip", "overwrite", "truncate", "duplicate", "remove", "swap",
+                                     "length", "opcode", "zeros"]))
+        i, j = (draw(st.integers(0, len(bounds) - 1)) for _ in range(2))
+        (a, b), (c, d) = bounds[i], bounds[j]
+        if kind == "flip":
+            k = draw(st.integers(0, len(data) - 1))
+            data[k] ^= 1 << draw(st.integers(0, 7))
+        elif kind == "overwrite":
+            k = draw(st.integers(0, len(data) - 1))
+            data[k:k + 8] = draw(st.binary(min_size=1, max_size=8))
+        elif kind == "truncate":
+            del data[draw(st.integers(0, len(data))):]
+        elif kind == "duplicate":
+            data[b:b] = data[a:b]
+        elif kind == "remove":
+            del data[a:b]
+        elif kind == "swap" and b <= c:
+            data[a:d] = data[c:d] + data[b:c] + data[a:b]
+        elif kind == "length" and a + 9 <= len(data):
+            lengths = st.sampled_from([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1])
+            struct.pack_into("<Q", data, a + 1, draw(lengths))
+        elif kind == "opcode":
+            data[a] = draw(st.integers(0, 255))
+        elif kind == "zeros":
+            data[a:a] = bytes(draw(st.integers(1, 5000)))
+    return bytes(data)
+
+
+def only_slearn_errors(function, *args):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            return function(*args)
+        except SlearnError:
+            return None
+
+
+def learn_log(path):
+    library = PatternLibrary(3)
+    for _, episode, _ in read_episodes([path], SPEC, Vocabulary()):
+        library.learn(episode)
+    return library
+
+
+@fuzz(3000)
+@given(data=mutated_log())
+def test_mutated_logs_raise_nothing_but_slearn_errors(tmp_path, data):
+    path = tmp_path / "fuzz.mcap"
+    path.write_bytes(data)
+    only_slearn_errors(describe_log, path)
+    only_slearn_errors(learn_log, path)
+
+
+# --- library headers and footers ------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def library_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("lib") / "good.parquet"
+    save(path, learned(episodes=2, steps=60))
+    return path
+
+
+JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8),
+                    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
+                    max_leaves=8)
+
+
+def _paths(doc, prefix=()):
+    yield prefix
+    if isinstance(doc, dict):
+        for key, value in doc.items():
+            yield from _paths(value, prefix + (key,))
+    elif isinstance(doc, list):
+        for i, value in enumerate(doc):
+            yield from _paths(value, prefix + (i,))
+
+
+@st.composite
+def mutated_header(draw, doc: dict) -> bytes:
+    doc = json.loads(json.dumps(doc))
+    if draw(st.booleans()):
+        text = bytearray(json.dumps(doc).encode())
+        for _ in range(draw(st.integers(1, 3))):
+            text[draw(st.integers(0, len(text) - 1))] = draw(st.integers(0, 255))
+        return bytes(text)
+    for _ in range(draw(st.integers(1, 3))):
+        paths = [p for p in _paths(doc) if p]
+        path = draw(st.sampled_from(paths))
+        target = doc
+        for key in path[:-1]:
+            target = target[key]
+        if draw(st.integers(0, 4)) == 0 and isinstance(target, dict):
+            del target[path[-1]]
+        else:
+            target[path[-1]] = draw(JSON)
+    return json.dumps(doc).encode()
+
+
+def test_mutated_headers_and_footers_raise_nothing_but_slearn_errors(library_file, tmp_path):
+    table = pq.read_table(library_file)
+    doc = json.loads(table.schema.metadata[METADATA_KEY])
+    data = library_file.read_bytes()
+    footer = len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+
+    @fuzz(1500)
+    @given(raw=mutated_header(doc), flip=st.integers(footer, len(data) - 1), bit=st.integers(0, 7))
+    def check(raw, flip, bit):
+        edited = tmp_path / "edited.parquet"
+        pq.write_table(table.replace_schema_metadata({METADATA_KEY: raw}), edited)
+        flipped = bytearray(data)
+        flipped[flip] ^= 1 << bit
+        (tmp_path / "flipped.parquet").write_bytes(bytes(flipped))
+        for path in (edited, tmp_path / "flipped.parquet"):
+            only_slearn_errors(load_library, path)
+            only_slearn_errors(describe, path)
+
+    check()
+
+
+# --- spec values ------------------------------------------------------------------------------
+
+KEYS = ["field", "name", "values", "max_symbols", "width", "origin", "range", "count",
+        "edges", "quantiles", "wrap"]
+VALUE = (st.none() | st.booleans() | st.integers(-2 ** 70, 2 ** 70) | st.floats() | st.text(max_size=6)
+         | st.lists(st.integers(-5, 5) | st.floats() | st.text(max_size=3), max_size=5)
+         | st.lists(st.lists(st.integers(), max_size=2), max_size=2))
+ENTRY = st.fixed_dictionaries({"topic": st.just("/a") | VALUE,
+                               "role": st.sampled_from(["action", "observation", "x"])},
+                              optional={k: VALUE for k in KEYS})
+SPECS = st.fixed_dictionaries({"channel": st.lists(ENTRY, min_size=1, max_size=3)},
+                              optional={"mode": st.sampled_from(["message", "change", "tick", "x"]),
+                                        "tick_ms": VALUE, "tick_ns": VALUE})
+
+
+@fuzz(2000)
+@given(data=SPECS, readings=st.lists(st.integers(-2 ** 1100, 2 ** 1100) | st.floats() | st.text(max_size=4)
+                                      | st.booleans(), max_size=10))
+def test_spec_values_raise_nothing_but_spec_errors(data, readings):
+    spec = only_slearn_errors(Spec.from_dict, data)
+    if spec is None:
+        return
+    assert Spec.from_dict(spec.to_dict()) == Spec.from_dict(spec.to_dict())
+    for entry in spec.channels:
+        declared = entry.symbolizer.declared_values()
+        assert declared is None or len(declared) <= entry.symbol_limit
+        for x in readings:
+            value = entry.symbolizer.symbol_value(x)
+            assert value is None or hash(value) is not None
+
+
+@fuzz(1000)
+@given(text=st.text(alphabet="/ab:=;,.0123456789-enaifvlusrgcotwq_[]", max_size=60))
+def test_channel_shorthands_raise_nothing_but_spec_errors(text):
+    entry = only_slearn_errors(parse_channel_option, text)
+    if entry is not None:
+        only_slearn_errors(Spec.from_dict, {"channel": [entry]})

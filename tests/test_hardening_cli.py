@@ -1,0 +1,304 @@
+"""Hostile inputs through the commands: inputs never overwritten, salvage semantics, value
+limits, one-line errors (the regression cases of issue 15)."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+
+import pytest
+from click.testing import CliRunner
+
+import mcap_bytes as mb
+from fixtures import POINTER_TOML, write_log
+from slearn.cli import EXIT_TRUNCATED, main
+from slearn.recorders.pointer import PointerConfig
+from slearn.recorders.record_pointer import record_pointer
+from slearn.storage import load_library
+
+from test_library_header import edited, _set
+
+
+def run(*args, env=None):
+    return CliRunner().invoke(main, [str(a) for a in args], env=env)
+
+
+def one_line(result, code=1):
+    assert result.exit_code == code, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def pointer(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("p")
+    log = folder / "simple.mcap"
+    record_pointer(PointerConfig("simple", 500, 0), log)
+    library = folder / "lib.parquet"
+    assert run("learn", "-q", log, "-o", library).exit_code == 0
+    return log, library
+
+
+def copies(tmp_path, *paths):
+    out = []
+    for path in paths:
+        target = tmp_path / path.name
+        target.write_bytes(path.read_bytes())
+        out.append(target)
+    return out
+
+
+# --- an input is never overwritten -------------------------------------------------------
+
+def test_learn_refuses_to_write_over_its_log_even_with_force(pointer, tmp_path):
+    log, library = copies(tmp_path, *pointer)
+    before = log.read_bytes()
+    os.link(log, tmp_path / "alias.mcap")
+    for output in (log, tmp_path / "alias.mcap", tmp_path / "." / log.name):
+        line = one_line(run("learn", "-q", log, "-o", output, "--force"))
+        assert "is also an input" in line and "even with --force" in line
+    resumed = run("learn", "-q", log, "--resume", library, "-o", library, "--force")
+    assert "is also an input" in one_line(resumed)
+    assert log.read_bytes() == before and load_library(library)
+
+
+def test_merge_replay_info_and_record_refuse_their_inputs(pointer, tmp_path):
+    log, library = copies(tmp_path, *pointer)
+    before = {p: p.read_bytes() for p in (log, library)}
+    cases = [
+        ("merge", library, library, "-o", library, "--force"),
+        ("replay", library, log, "--write-mcap", log, "--force", "-q"),
+        ("replay", library, log, "--plot", library, "--force", "-q"),
+        ("replay", library, log, "--report", log, "--force", "-q"),
+        ("info", log, "--suggest-spec", log, "--force"),
+        ("control", "--condition", "simple", "--goals", "1", "--library", library, "--record", library,
+         "--force", "--no-qlearning"),
+    ]
+    for args in cases:
+        assert "is also an input" in one_line(run(*args)), args
+    source = tmp_path / "events.csv"
+    source.write_text("time,channel,value\n0,cmd,L\n1,pos,3\n")
+    assert "is also an input" in one_line(run("record", "stream", source, "-o", source, "--force"))
+    out = tmp_path / "events.mcap"
+    assert "is also an input" in one_line(run("record", "stream", source, "-o", out, "--spec-out", source,
+                                              "--force"))
+    assert all(p.read_bytes() == b for p, b in before.items())
+
+
+# --- salvage semantics --------------------------------------------------------------------
+
+def _damaged_pointer(tmp_path, good_log):
+    """The pointer log with every chunk's CRC wrong: nothing can be salvaged."""
+    data = bytearray(good_log.read_bytes())
+    pos = 8
+    while pos + 9 <= len(data):
+        op, length = struct.unpack_from("<BQ", data, pos)
+        if op == 0x06:
+            struct.pack_into("<I", data, pos + 9 + 24, 12345)
+        if op == 0x02:
+            break
+        pos += 9 + length
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_nothing_salvaged_exits_1_and_leaves_the_old_library(pointer, tmp_path):
+    log, library = copies(tmp_path, *pointer)
+    before = library.read_bytes()
+    damaged = _damaged_pointer(tmp_path, log)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(POINTER_TOML)
+    line = one_line(run("learn", "-q", damaged, "--spec", spec, "-o", library, "--force"))
+    assert "nothing could be salvaged, so nothing was written" in line
+    assert f"{damaged}: truncated or corrupt log" in line and "chunk CRC mismatch" in line
+    assert library.read_bytes() == before
+
+    # channels defined only inside a damaged chunk, no summary: no topic can be read
+    lost = tmp_path / "lost.mcap"
+    lost.write_bytes(mb.MAGIC + mb.header() + mb.chunk(mb.schema() + mb.channel() + mb.message(0), crc=1))
+    line = one_line(run("learn", "-q", lost, "-o", tmp_path / "new.parquet"))
+    assert line.startswith(f"slearn: error: nothing could be read: {lost}: truncated or corrupt log")
+    assert "1 unreadable chunk(s) skipped" in line
+    assert "not a pointer log" not in line and not (tmp_path / "new.parquet").exists()
+
+
+def test_a_damaged_log_among_good_ones_is_skipped_with_exit_3(pointer, tmp_path):
+    log, _ = copies(tmp_path, *pointer)
+    damaged = _damaged_pointer(tmp_path, log)
+    result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet")
+    assert result.exit_code == EXIT_TRUNCATED and "chunk CRC mismatch" in result.stderr
+    assert load_library(tmp_path / "both.parquet").library.clock == 500  # the good log only
+
+
+def test_undecodable_payloads_are_counted_per_channel_and_skipped(tmp_path):
+    payloads = [b'{"v": %d}' % (i % 3) if i not in (4, 9) else b'{"v": 2!' for i in range(12)]
+    path = tmp_path / "x.mcap"
+    path.write_bytes(mb.log(*(mb.message(i, p) for i, p in enumerate(payloads))))
+    result = run("learn", "-q", path, "--channel", "/a:v:observation", "-o", tmp_path / "lib.parquet")
+    assert result.exit_code == EXIT_TRUNCATED, result.output
+    no_action, warning = result.stderr.strip().splitlines()  # the spec has observations only
+    assert "the spec has no action channel" in no_action
+    offset = len(mb.MAGIC + mb.header() + mb.schema() + mb.channel()) + 4 * len(mb.message(0, b'{"v": 0}'))
+    assert warning == (f"slearn: warning: {path}: skipped 2 message(s) that do not decode (2 on /a; "
+                       f"first at byte {offset}: channel '/a': a message does not decode: Expecting ',' "
+                       f"delimiter: line 1 column 8 (char 7))")
+    assert load_library(tmp_path / "lib.parquet").library.clock == 9  # 10 steps
+
+
+def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(pointer, tmp_path):
+    damaged = _damaged_pointer(tmp_path, pointer[0])
+    line = one_line(run("learn", "-q", damaged, "-o", tmp_path / "lib.parquet",
+                        "--channel", "/pointer/position:position:observation:quantiles=4"))
+    assert "no numeric value in the training logs to fit quantile bins on (the log is damaged: " in line
+
+
+# --- cheap checks before long work ---------------------------------------------------------
+
+def test_a_bad_provenance_stops_resume_before_any_learning(pointer, tmp_path, monkeypatch):
+    import slearn.learn as learn
+
+    log, library = pointer
+    bad = edited(library, tmp_path, _set("provenance.inputs.0.sha256", "nope"))
+    monkeypatch.setattr(learn, "_learn_episodes", lambda *a: pytest.fail("learned before checking"))
+    line = one_line(run("learn", "-q", log, "--resume", bad, "-o", tmp_path / "out.parquet"))
+    assert "field provenance.inputs[0].sha256 must be 64 lowercase hex digits" in line
+
+
+@pytest.mark.parametrize("epoch", ["100000000000000000", "-1", "soon"])
+def test_a_bad_source_date_epoch_stops_before_learning(pointer, tmp_path, monkeypatch, epoch):
+    import slearn.learn as learn
+
+    monkeypatch.setattr(learn, "_learn_episodes", lambda *a: pytest.fail("learned before checking"))
+    line = one_line(run("learn", "-q", pointer[0], "-o", tmp_path / "out.parquet",
+                        env={"SOURCE_DATE_EPOCH": epoch}))
+    assert "SOURCE_DATE_EPOCH must be an integer from 0 to 253402300799" in line
+
+
+# --- value limits -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("options, message", [
+    ("range=0;1,count=1000000000", "`count` must be an integer from 1 to 1,000,000"),
+    ("range=0;1,count=-3", "`count` must be an integer from 1 to 1,000,000"),
+    ("quantiles=1000000000", "`quantiles` must be an integer from 1 to 1,000,000"),
+    ("width=5e-324", "`width` must be a number from 1e-300 to 1e+300"),
+    ("width=inf", "`width` must be a number from 1e-300"),
+    ("width=1,origin=nan", "`origin` must be a finite number"),
+    ("range=-inf;inf,count=4", "`range` must be a list of finite numbers"),
+    ("range=0;1e308;1,count=4", "`range` must be [low, high]"),
+    ("edges=0;nan;2", "`edges` must be a list of finite numbers"),
+    ("edges=2;1", "strictly increasing"),
+    ("values=a;a", "`values` must be distinct"),
+    ("values=1;1.0", "`values` must be distinct"),
+    ("max_symbols=0", "`max_symbols` must be an integer from 1 to 2,147,483,647"),
+])
+def test_spec_values_out_of_range_are_one_line_errors(pointer, tmp_path, options, message):
+    line = one_line(run("learn", "-q", pointer[0], "-o", tmp_path / "lib.parquet",
+                        "--channel", f"/pointer/position:position:observation:{options}",
+                        "--channel", "/pointer/command:command:action"))
+    assert message in line
+
+
+@pytest.mark.parametrize("text, message", [
+    ('mode = "tick"\ntick_ms = 1e-9\n', "`tick_ms` must be a number from 1e-06 to 8.64e+07 (1 ns to a day)"),
+    ('mode = "tick"\ntick_ms = inf\n', "`tick_ms` must be a number"),
+    ('mode = "tick"\ntick_ms = nan\n', "`tick_ms` must be a number"),
+    ('mode = "tick"\ntick_ms = "100"\n', "`tick_ms` must be a number"),
+    ('mode = "tick"\ntick_ns = 0\n', "`tick_ns` must be a number from 1 to 8.64e+13"),
+])
+def test_tick_periods_out_of_range_are_one_line_errors(pointer, tmp_path, text, message):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(text + POINTER_TOML.replace('mode = "message"\n', ""))
+    assert message in one_line(run("learn", "-q", pointer[0], "--spec", spec, "-o", tmp_path / "lib.parquet"))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--max-length", "1000000000"], "1000000000 is not in the range 1<=x<=1000"),
+    (["--max-patterns", "100000000000000000000"], "is not in the range 16<=x<=2147483647"),
+    (["--max-patterns", "-4"], "is not in the range 16<=x<=2147483647"),
+])
+def test_learner_options_out_of_range_are_usage_errors_naming_the_range(pointer, tmp_path, args, message):
+    result = run("learn", "-q", pointer[0], "-o", tmp_path / "lib.parquet", *args)
+    assert result.exit_code == 2 and message in result.stderr
+
+
+def test_option_limits_are_stated_in_help():
+    assert "1<=x<=1000" in run("learn", "--help").stdout
+    assert "1<=x<=100" in run("replay", "--help").stdout
+    assert "SLEARN_MAX_CHUNK_MB" in run("--help").stdout
+
+
+def test_nan_fail_under_is_refused(pointer, tmp_path):
+    result = run("replay", pointer[1], pointer[0], "--fail-under", "nan", "-q")
+    assert result.exit_code == 2 and "not a finite number" in result.stderr
+
+
+def test_values_too_large_for_the_bins_are_skipped(tmp_path):
+    path = tmp_path / "big.mcap"
+    payloads = [b'{"v": 1' + b"0" * 400 + b"}", b'{"v": 1e308}', b'{"v": -1e308}', b'{"v": 3.5}']
+    path.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, p) for i, p in enumerate(payloads)))))
+    result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet", "--channel", "/a:v:observation:width=1")
+    assert result.exit_code == 0, result.output  # was OverflowError
+    assert [v for _, _, v in load_library(tmp_path / "lib.parquet").vocabulary.items()] == [3]
+
+
+def test_a_channel_with_more_values_than_its_limit_is_refused(tmp_path):
+    path = write_log(tmp_path / "x.mcap", [("/a", i, {"v": i}) for i in range(20)])
+    result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet",
+                 "--channel", "/a:v:observation:max_symbols=5")
+    assert result.exit_code == 1, result.output
+    no_action, line = result.stderr.strip().splitlines()  # the spec has observations only
+    assert "the spec has no action channel" in no_action
+    assert "channel '/a' has more than 5 distinct values: use coarser bins, or raise the entry's max_symbols" in line
+    assert run("learn", "-q", path, "-o", tmp_path / "lib.parquet",
+               "--channel", "/a:v:observation:max_symbols=20").exit_code == 0
+
+
+def test_nan_readings_of_a_categorical_channel_are_not_symbols(tmp_path):
+    path = tmp_path / "nan.mcap"
+    path.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, b'{"v": NaN}') for i in range(50)))))
+    result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet", "--channel", "/a:v:observation")
+    assert result.exit_code == 0, result.output
+    assert len(load_library(tmp_path / "lib.parquet").vocabulary) == 0
+
+
+def test_info_on_a_fifo_does_not_hang(tmp_path):
+    import threading
+
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+    results = []
+    thread = threading.Thread(target=lambda: results.append(run("info", fifo)), daemon=True)
+    thread.start()
+    thread.join(20)
+    assert results, "slearn info blocked on a FIFO"
+    assert "not a regular file" in one_line(results[0])
+
+
+def test_ros1_strings_that_are_not_utf8_keep_the_output_one_line(tmp_path, capfd):
+    from mcap.writer import Writer
+
+    path = tmp_path / "ros1.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros1", library="test")
+        schema = writer.register_schema("std_msgs/String", "ros1msg", b"string data")
+        channel = writer.register_channel("/s", "ros1", schema)
+        for i, text in enumerate([b"ok", b"bad \xff\xfe", b"ok"]):
+            writer.add_message(channel, log_time=i, publish_time=i, data=struct.pack("<I", len(text)) + text)
+        writer.finish()
+    result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet", "--channel", "/s:data:observation")
+    assert result.exit_code == 0, result.output
+    assert "Characters replaced" not in result.output + capfd.readouterr().err
+    values = [v for _, _, v in load_library(tmp_path / "lib.parquet").vocabulary.items()]
+    assert values == ["ok", "bad \ufffd\ufffd"]
+
+
+def test_json_output_of_a_salvaged_learn_is_one_document(pointer, tmp_path):
+    log, _ = copies(tmp_path, *pointer)
+    damaged = _damaged_pointer(tmp_path, log)
+    result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet", "--json")
+    assert result.exit_code == EXIT_TRUNCATED
+    assert json.loads(result.stdout)["truncated"][0].startswith(str(damaged))
