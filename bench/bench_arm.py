@@ -5,14 +5,15 @@ sensors serialized into one stream, and that storage will not feel the curse of
 dimensionality "full force". Per joint count and sensor layout (see
 :mod:`slearn.recorders.arm`) this prints, averaged over seeds:
 
-- patterns: library size after all trials; ``mem``: ``PatternLibrary.nbytes()``;
+- patterns: library size after all trials (every context of every joint's view);
+  ``mem``: ``PatternLibrary.nbytes()``;
   ``file``: the saved Parquet library (``slearn.storage``), and file bytes per pattern;
 - ``conceivable``: log10 of the number of patterns a dense table up to the same length
   would need (``|O| * (|A| |O|)^m`` summed over ``m = 1..max_length``);
 - ``learn``: seconds for ``PatternLibrary.learn`` on the whole episode (compiled kernels
   warmed up first);
-- accuracy per thousand trials: prequential (``slearn.online.run_online`` with a fresh
-  library, predict each step then learn it), the paper's Fig. 2 measure.
+- accuracy per thousand trials: prequential (a fresh library predicts each step, then
+  learns it; a step is right when every joint reporting in it is), the paper's Fig. 2 measure.
 
 Run: ``python bench/bench_arm.py [--trials 10000] [--seeds 3] [--json]``.
 """
@@ -28,10 +29,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from slearn_adapter import step_correct
 
 from slearn.library import PatternLibrary
-from slearn.online import run_online
-from slearn.predictor import Predictor
 from slearn.recorders.arm import MAX_JOINTS, SENSORS, ArmConfig, arm_spec, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import N_BINS
 
@@ -66,14 +66,14 @@ def measure(joints: int, sensors: str, trials: int, seed: int, max_length: int,
             window: int = WINDOW) -> dict:
     """One episode: prequential accuracy per window, library size, bytes, learning time."""
     episode = simulate_arm(ArmConfig(joints, trials, seed, sensors)).to_episode()
-    library = PatternLibrary(max_length=max_length)
-    online = run_online(Predictor(library), episode)
-    learner = PatternLibrary(max_length=max_length)
+    library = PatternLibrary(max_length=max_length, vocabulary=arm_vocabulary(joints))
+    correct = step_correct(library, episode)
+    learner = PatternLibrary(max_length=max_length, vocabulary=arm_vocabulary(joints))
     start = time.perf_counter()
     learner.learn(episode)
     seconds = time.perf_counter() - start
-    windows = len(online.correct) // window
-    accuracy = online.correct[:windows * window].reshape(windows, window).mean(axis=1)
+    windows = len(correct) // window
+    accuracy = correct[:windows * window].reshape(windows, window).mean(axis=1)
     return {"patterns": len(library), "mem_bytes": library.nbytes(),
             "file_bytes": file_bytes(library, joints), "learn_s": seconds,
             "obs_tokens": len({tuple(o) for _, o in episode.steps()}),
@@ -96,8 +96,7 @@ def average(rows: list[dict]) -> dict:
 def run(trials: int, seeds: int, max_length: int, layouts: list[str],
         window: int = WINDOW) -> list[dict]:
     """Every joint count and layout, averaged over ``seeds`` seeds."""
-    simulate_arm(ArmConfig(1, 50)).to_episode()
-    run_online(Predictor(PatternLibrary()), simulate_arm(ArmConfig(1, 50)).to_episode())
+    step_correct(PatternLibrary(vocabulary=arm_vocabulary(1)), simulate_arm(ArmConfig(1, 50)).to_episode())
     results = []
     for sensors in layouts:
         for joints in range(1, MAX_JOINTS + 1):

@@ -49,7 +49,8 @@ from slearn.info import describe_log  # noqa: E402
 from slearn.library import PatternLibrary  # noqa: E402
 from slearn.serialize import read_episodes  # noqa: E402
 from slearn.spec import Spec, parse_channel_option  # noqa: E402
-from slearn.storage import METADATA_KEY, describe, load_library, save_library  # noqa: E402
+from slearn.library_info import describe  # noqa: E402
+from slearn.storage import METADATA_KEY, load_library, save_library  # noqa: E402
 from slearn.vocabulary import Vocabulary  # noqa: E402
 
 SPEC = Spec.from_dict({"mode": "change", "channel": [

@@ -33,9 +33,10 @@ class Baselines:
 
     def __init__(self, library: PatternLibrary | LiteralLibrary) -> None:
         literal = isinstance(library, LiteralLibrary)
+        self.source = library
         self.counts = PatternLibrary(
             library.max_length, None, None if literal else library.vocabulary,
-            True if literal else library.has_actions)
+            True if literal else library._has_actions)
         self.counts.tokens = library.tokens
         self.counts.empty_action = library.tokens.intern(ACTION, ())
         self.counts.empty_observation = library.tokens.intern(OBSERVATION, ())
@@ -55,4 +56,6 @@ class Baselines:
         after predicting it if ``learn``."""
         if learn:
             self.steps_learned += len(codes)
+        if self.counts._has_actions is None:  # decided by the library's first episode
+            self.counts._has_actions = self.source.has_actions
         return self.counts.run(codes, learn=learn, record=False, baselines=True)

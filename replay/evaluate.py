@@ -82,7 +82,8 @@ class EpisodeOutcome:
         matched_length: the longest context, in tokens, among the views' chosen ones (-1).
         frequency, markov, persistence: the baselines' predicted tuples (-1 abstained).
         evaluated: steps that count (some view reported with some history).
-        first_step: the episode step of index 0 (always 0; kept for annotated logs).
+        first_step: the episode step of index 0: 1 when the episode begins with a reading
+            (nothing can predict it), else 0.
         truth_probability: the product of the views' shares behind what happened (frozen
             replays; NaN online, where the library has moved on since).
     """
@@ -195,12 +196,12 @@ class Evaluation:
         return self.predictions / self.elapsed_s if self.elapsed_s > 0 else math.nan
 
     def to_dict(self) -> dict:
-        """The ``slearn.replay/1`` JSON document.
+        """The ``slearn.replay/2`` JSON document.
 
         Rates are in [0, 1] and ``null`` when undefined (no events); lifts are in
         percentage points (library accuracy minus baseline accuracy). Keys::
 
-            schema        "slearn.replay/1"
+            schema        "slearn.replay/2"
             mode          "frozen" | "online"
             top_k, window ranked guesses counted; steps per learning-curve window
             scoring       {rule: "adaptive" | "literal", factored}
@@ -300,12 +301,14 @@ def _predict_episode(name: str, episode: Episode, library, baselines: Baselines,
     codes = library.encode(episode)
     reports = library.run(codes, learn=online, record=True, top_k=top_k)
     guesses = baselines.run(codes, learn=baselines_learn)
-    return _joined(name, codes, reports, guesses, library.tokens, steps, online)
+    first = 1 if len(episode) and episode.n_actions[0] == 0 else 0  # a first reading is not predicted
+    return _joined(name, codes, reports, guesses, library.tokens, steps, online, first)
 
 
 def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tokens: TokenTable,
-            steps: TokenTable, online: bool) -> EpisodeOutcome:
-    """Per step, the tuples of what every view saw, was predicted and the baselines said."""
+            steps: TokenTable, online: bool, first: int) -> EpisodeOutcome:
+    """Per step from ``first`` on, the tuples of what every view saw, was predicted and the
+    baselines said."""
     use = reports.context
     columns = (codes.token, reports.predicted, guesses.frequency, guesses.markov, guesses.persistence)
     sizes = np.diff(tokens.arrays.offsets[: len(tokens) + 1])
@@ -330,9 +333,9 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
     score = _step_product(offsets, reports.score, use)
     truth = np.full(len(codes), np.nan) if online else _step_product(offsets, reports.truth_p, use)
     length = _step_max(offsets, reports.length, use)
-    return EpisodeOutcome(name, actual, join(reports.predicted), top_k, score, length,
-                          join(guesses.frequency), join(guesses.markov), join(guesses.persistence),
-                          evaluated, 0, truth)
+    columns = (actual, join(reports.predicted), top_k, score, length, join(guesses.frequency),
+               join(guesses.markov), join(guesses.persistence), evaluated)
+    return EpisodeOutcome(name, *(c[first:] for c in columns), first, truth[first:])
 
 
 @kernel

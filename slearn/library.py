@@ -157,9 +157,9 @@ class PatternLibrary:
             self.mixer = new_mixer(n, self.max_context)
         self.mixer = with_views(self.mixer, n)
         have = 0 if self.streams is None else len(self.streams.root)
-        if have < n:
+        if have < n or self.streams is None:
             self.tree = context_tree.ensure_room(self.tree, n - have, 0)
-            roots = [context_tree.add_root(self.tree, v) for v in range(have, n)]
+            roots = np.array([context_tree.add_root(self.tree, v) for v in range(have, n)], np.int32)
             old = self.streams
             self.streams = views.new_view_state(n, self.max_context, np.concatenate(
                 (old.root if old is not None else np.zeros(0, np.int32), roots)))

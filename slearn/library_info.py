@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from slearn.storage import read_pattern_table
+from slearn.spec import value_labels
+from slearn.storage import load_library, read_info
 from slearn.tokens import TokenTable
 from slearn.vocabulary import Vocabulary
 
@@ -19,13 +20,19 @@ MAX_LISTED_VALUES = 100
 
 def describe(path: str | os.PathLike) -> "LibraryDescription":
     """Pattern count, lengths, vocabulary, the most frequent patterns decoded, parameters,
-    provenance and bytes per pattern of a library file.
+    provenance and bytes per pattern of a library file. The file is loaded whole first: the
+    checks are those replay, resume and merge make.
 
     Raises:
         LibraryFormatError: the file is not a readable library (as :func:`load_library`).
     """
     path = Path(path)
-    doc, vocabulary, tokens, arrays = read_pattern_table(path)
+    loaded = load_library(path)
+    doc = read_info(path)
+    vocabulary, library = loaded.vocabulary, loaded.library
+    if loaded.spec is not None:  # bins read as value ranges
+        vocabulary.value_labels.update(value_labels(loaded.spec))
+    arrays = library.export()
     size, n = path.stat().st_size, len(arrays["count"])
     literal = doc["params"].get("scoring") == "literal"
     lengths = np.diff(arrays["pattern_offsets"])
@@ -38,8 +45,9 @@ def describe(path: str | os.PathLike) -> "LibraryDescription":
         "length_unit": "steps" if literal else "context tokens",
         "length_histogram": {str(k): int(c) for k, c in enumerate(np.bincount(context)) if c},
         "mean_length": float(context.mean()) if n else 0.0,
+        "views": list(getattr(library, "view_names", [])),
         "vocabulary": _describe_vocabulary(vocabulary),
-        "top_patterns": _top_patterns(arrays, tokens, vocabulary),
+        "top_patterns": _top_patterns(arrays, library.tokens, vocabulary),
         "params": doc["params"], "spec": doc["spec"], "provenance": doc["provenance"],
     })
 
@@ -65,7 +73,7 @@ class LibraryDescription(dict):
                  f"(mean {self['mean_length']:.2f})",
                  f"  vocabulary: {self['vocabulary']['symbols']} symbols"]
         for channel in self["vocabulary"]["channels"]:
-            values = ", ".join(map(str, channel["values"][:12]))
+            values = ", ".join(map(str, channel.get("labels", channel["values"])[:12]))
             more = " ..." if channel["n_values"] > 12 else ""
             lines.append(f"    {channel['channel']:<32} {channel['role']:<11} {channel['n_values']:>6}  "
                          f"{values}{more}")
@@ -87,9 +95,12 @@ def _describe_vocabulary(vocabulary: Vocabulary) -> dict:
     values: dict[str, list] = {c: [] for c in vocabulary.channels()}
     for _, channel, value in vocabulary.items():
         values[channel].append(value)
+    shown = {c: [vocabulary.value_labels[c](x) for x in v[:MAX_LISTED_VALUES]]
+             if c in vocabulary.value_labels else None for c, v in values.items()}
     return {"symbols": len(vocabulary), "channels": [
         {"channel": c, "role": vocabulary.roles[c], "n_values": len(v),
-         "values": [_jsonable(x) for x in v[:MAX_LISTED_VALUES]]} for c, v in values.items()]}
+         "values": [_jsonable(x) for x in v[:MAX_LISTED_VALUES]],
+         **({"labels": shown[c]} if shown[c] is not None else {})} for c, v in values.items()]}
 
 
 def _jsonable(value: Any) -> Any:
@@ -107,8 +118,8 @@ def _top_patterns(arrays: dict, tokens: TokenTable, vocabulary: Vocabulary) -> l
     for i in order[:TOP_PATTERNS].tolist():
         pattern = [list(tokens.symbols(int(t))) for t in flat[offsets[i]:offsets[i + 1]]]
         top.append({"pattern": " ".join("+".join(labels[s] for s in t) or "-" for t in pattern),
-                    "tokens": len(pattern), "count": int(count[i]), "last_seen": int(seen[i]),
-                    "events": [_token_events(vocabulary, t) for t in pattern]})
+                    "length": len(pattern), "count": int(count[i]), "last_seen": int(seen[i]),
+                    "tokens": [_token_events(vocabulary, t) for t in pattern]})
     return top
 
 
@@ -124,8 +135,10 @@ def _token_events(vocabulary: Vocabulary, symbols: list[int]) -> dict:
 
 
 def _short_labels(vocabulary: Vocabulary) -> list[str]:
-    """``value`` where the value's text belongs to one channel only, else ``channel=value``."""
+    """``value`` where the value's text belongs to one channel only, else ``channel=value``
+    (bins as value ranges)."""
+    texts = [(c, vocabulary.value_text(s)) for s, c, _ in vocabulary.items()]
     channels: dict[str, set[str]] = {}
-    for _, channel, value in vocabulary.items():
-        channels.setdefault(str(value), set()).add(channel)
-    return [str(v) if len(channels[str(v)]) == 1 else f"{c}={v}" for _, c, v in vocabulary.items()]
+    for channel, text in texts:
+        channels.setdefault(text, set()).add(channel)
+    return [t if len(channels[t]) == 1 else f"{c}={t}" for c, t in texts]

@@ -75,8 +75,7 @@ class Mixer(NamedTuple):
 def new_mixer(views: int, max_context: int) -> Mixer:
     """Fresh weights: everything equal but the tie-breaking prior."""
     weight = np.empty((views, max_context, N_KINDS))
-    weight[:] = _TIE * (1.0 - 1e-12 * np.arange(max_context))[:, None]
-    weight /= weight.max()
+    weight[:] = (_TIE / _TIE.max()) * (1.0 - 1e-12 * np.arange(max_context))[:, None]
     weight[:, :, FRESH] = ASLEEP
     return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32))
 

@@ -254,7 +254,7 @@ def _view_table(library) -> pa.Table:
     if isinstance(library, LiteralLibrary) or library.mixer is None:
         return _table("view", 0, {})
     mixer, n = library.mixer, len(library.view_names)
-    weights = mixer.weight[:n].reshape(n, -1)
+    weights = mixer.weight[:n].reshape(n, mixer.weight.shape[1] * mixer.weight.shape[2])
     return _table("view", n, {
         "channel": pa.array(library.view_names, pa.string()),
         "view_epoch": pa.array(mixer.epoch[:n], pa.int32()),
@@ -484,7 +484,7 @@ def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
         arrays["pattern_parent" if name == "parent" else name] = _numbers(
             table.column(name), name, path).astype(np.int64)
     if len(arrays["count"]) and arrays["count"].min() < 1:
-        raise LibraryFormatError(f"{path}: a pattern has a count below 1")
+        raise LibraryFormatError(f"{path}: a pattern count is not positive: re-create the library")
     return arrays
 
 
@@ -544,19 +544,6 @@ def read_info(path: str | os.PathLike) -> dict:
         LibraryFormatError: as :func:`load_library`.
     """
     return _open(Path(path))[1]
-
-
-def read_pattern_table(path: str | os.PathLike) -> tuple[dict, Vocabulary, TokenTable, dict]:
-    """``(header, vocabulary, tokens, pattern arrays)`` without building the library."""
-    path = Path(path)
-    parquet, doc = _open(path)
-    with _reading(path):
-        groups = _row_groups(parquet, doc, path)
-        vocabulary = _read_vocabulary(parquet, groups["vocabulary"], doc, path)
-        tokens = _read_tokens(parquet, groups["token"], len(vocabulary), path)
-        arrays = _read_patterns(parquet, groups["pattern"], doc["params"].get("scoring") == "literal",
-                                len(tokens), path)
-    return doc, vocabulary, tokens, arrays
 
 
 def file_record(path: str | os.PathLike) -> dict:

@@ -103,8 +103,10 @@ def test_existing_file_is_refused(tmp_path):
 
 def test_bench_arm_smoke():
     import importlib.util
+    import sys
     from pathlib import Path
 
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     path = Path(__file__).resolve().parents[1] / "bench" / "bench_arm.py"
     spec = importlib.util.spec_from_file_location("bench_arm", path)
     bench = importlib.util.module_from_spec(spec)
@@ -112,7 +114,7 @@ def test_bench_arm_smoke():
     results = bench.run(trials=2000, seeds=1, max_length=5, layouts=["moved"])
     assert [r["joints"] for r in results] == [1, 2, 3, 4]
     assert results[0]["accuracy"][-1] == 1.0 and len(results[0]["accuracy"]) == 2
-    assert all(r["patterns"] <= 2000 + 4 for r in results)  # at most one new pattern a step
+    assert all(r["accuracy"][-1] > 0.9 for r in results)  # every joint from its own reading
     assert len(bench.render(results).splitlines()) == 2 + 4
 
 

@@ -20,7 +20,8 @@ from slearn.info import describe_log
 from slearn.library import PatternLibrary
 from slearn.serialize import read_episodes
 from slearn.spec import Spec, parse_channel_option
-from slearn.storage import METADATA_KEY, describe, load_library
+from slearn.library_info import describe
+from slearn.storage import METADATA_KEY, load_library
 from slearn.vocabulary import Vocabulary
 
 from test_storage import learned, save

@@ -130,7 +130,7 @@ def test_a_damaged_log_among_good_ones_is_skipped_with_exit_3(pointer, tmp_path)
     damaged = _damaged_pointer(tmp_path, log)
     result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet")
     assert result.exit_code == EXIT_TRUNCATED and "chunk CRC mismatch" in result.stderr
-    assert load_library(tmp_path / "both.parquet").library.clock == 500  # the good log only
+    assert load_library(tmp_path / "both.parquet").library.clock == 501  # the good log only
 
 
 def test_undecodable_payloads_are_counted_per_channel_and_skipped(tmp_path):
@@ -145,7 +145,7 @@ def test_undecodable_payloads_are_counted_per_channel_and_skipped(tmp_path):
     assert warning == (f"slearn: warning: {path}: skipped 2 message(s) that do not decode (2 on /a; "
                        f"first at byte {offset}: channel '/a': a message does not decode: Expecting ',' "
                        f"delimiter: line 1 column 8 (char 7))")
-    assert load_library(tmp_path / "lib.parquet").library.clock == 9  # 10 steps
+    assert load_library(tmp_path / "lib.parquet").library.clock == 10  # 10 steps
 
 
 def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(pointer, tmp_path):
@@ -215,7 +215,7 @@ def test_tick_periods_out_of_range_are_one_line_errors(pointer, tmp_path, text, 
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--max-length", "1000000000"], "1000000000 is not in the range 1<=x<=1000"),
+    (["--max-length", "1000000000"], "1000000000 is not in the range 1<=x<=64"),
     (["--max-patterns", "100000000000000000000"], "is not in the range 16<=x<=2147483647"),
     (["--max-patterns", "-4"], "is not in the range 16<=x<=2147483647"),
 ])
@@ -225,7 +225,7 @@ def test_learner_options_out_of_range_are_usage_errors_naming_the_range(pointer,
 
 
 def test_option_limits_are_stated_in_help():
-    assert "1<=x<=1000" in run("learn", "--help").stdout
+    assert "1<=x<=64" in run("learn", "--help").stdout
     assert "1<=x<=100" in run("replay", "--help").stdout
     assert "SLEARN_MAX_CHUNK_MB" in run("--help").stdout
 

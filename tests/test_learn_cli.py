@@ -12,7 +12,8 @@ from slearn.learn import learn_files
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.storage import describe, load_library
+from slearn.library_info import describe
+from slearn.storage import load_library
 
 TRIALS = 2_000
 
@@ -42,7 +43,7 @@ def test_learn_writes_a_library_and_a_summary(logs, tmp_path):
     result = learn(logs["simple"], logs["delay"], "-o", out)
     assert result.exit_code == 0, result.output
     loaded = load_library(out)
-    assert len(loaded.library) > 100 and loaded.library.clock == 2 * TRIALS
+    assert len(loaded.library) > 100 and loaded.library.clock == 2 * (TRIALS + 1)  # and first readings
     assert loaded.params == {"max_length": 5, "max_patterns": None, "scoring": "adaptive"}
     assert [i["path"] for i in loaded.provenance["inputs"]] == [str(logs["simple"]), str(logs["delay"])]
     assert loaded.provenance["time_unix"] == 1_600_000_001
@@ -235,7 +236,7 @@ def test_info_describes_a_library(logs, tmp_path):
     assert sum(doc["length_histogram"].values()) == doc["patterns"]
     assert doc["bytes_per_pattern"] == pytest.approx(out.stat().st_size / doc["patterns"])
     top = doc["top_patterns"][0]
-    assert top["count"] == max(p.count for p in loaded.library.iter_patterns())
+    assert top["count"] == max(p.count for p in loaded.library.patterns())
     assert set(top["tokens"][0]) == {"/pointer/position"} and set(top["tokens"][1]) == {"/pointer/command"}
     assert doc["provenance"]["inputs"][0]["sha256"] == loaded.provenance["inputs"][0]["sha256"]
     text = run("info", out)
@@ -272,7 +273,7 @@ def test_merge_refuses_libraries_with_other_parameters(logs, tmp_path):
     learn(logs["delay"], "-o", tmp_path / "b.parquet", "--max-length", "4")
     result = run("merge", tmp_path / "a.parquet", tmp_path / "b.parquet", "-o", tmp_path / "c.parquet")
     assert result.exit_code == 1
-    assert "max_length 5 vs 4" in result.stderr and result.stderr.count("\n") == 1
+    assert "max_length 6 vs 4" in result.stderr and result.stderr.count("\n") == 1
     assert not (tmp_path / "c.parquet").exists()
 
 

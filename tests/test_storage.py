@@ -11,9 +11,12 @@ from hypothesis import given, settings, strategies as st
 
 from slearn.errors import InputError, LibraryFormatError, SpecError
 from slearn.library import PatternLibrary
+from slearn.literal import LiteralLibrary
 from slearn.spec import Bins, Categorical, ChannelSpec, Spec
-from slearn.storage import (FORMAT_VERSION, METADATA_KEY, describe, load_library, merge_libraries,
-                            read_info, save_library)
+from slearn.library_header import FORMAT_VERSION
+from slearn.library_info import describe
+from slearn.merge import merge_libraries
+from slearn.storage import METADATA_KEY, load_library, read_info, save_library
 from slearn.stream import Episode
 from slearn.tokens import TokenTable
 from slearn.vocabulary import Vocabulary
@@ -60,7 +63,16 @@ def random_episode(rng: np.random.Generator, steps: int) -> Episode:
 
 def learned(seed: int = 0, episodes: int = 3, steps: int = 400, max_patterns=None) -> PatternLibrary:
     rng = np.random.default_rng(seed)
-    library = PatternLibrary(4, max_patterns)
+    library = PatternLibrary(4, max_patterns, has_actions=True)
+    for _ in range(episodes):
+        library.learn(random_episode(rng, steps))
+    return library
+
+
+def learned_literal(seed: int = 0, episodes: int = 3, steps: int = 400) -> LiteralLibrary:
+    """The paper's rule on the same episodes as :func:`learned`."""
+    rng = np.random.default_rng(seed)
+    library = LiteralLibrary(4)
     for _ in range(episodes):
         library.learn(random_episode(rng, steps))
     return library
@@ -79,8 +91,10 @@ def assert_same_library(a: PatternLibrary, b: PatternLibrary) -> None:
         np.testing.assert_array_equal(ea[key], eb[key], err_msg=key)
     for x, y in zip(a.tokens.export(), b.tokens.export()):
         np.testing.assert_array_equal(x, y)
-    assert (a.clock, a.forgotten, a.max_length, a.max_patterns) == (b.clock, b.forgotten, b.max_length,
-                                                                    b.max_patterns)
+    for x, y in zip(getattr(a, "mixer", None) or (), getattr(b, "mixer", None) or ()):
+        np.testing.assert_array_equal(x, y)
+    assert (a.clock, a.forgotten, a.max_length, a.max_patterns, a.view_names) == (
+        b.clock, b.forgotten, b.max_length, b.max_patterns, b.view_names)
 
 
 # --- round trip ---------------------------------------------------------------------------
@@ -93,9 +107,10 @@ def test_round_trip_keeps_everything(tmp_path):
     assert summary.n_patterns == len(library) == len(loaded.library)
     assert summary.size_bytes == (tmp_path / "lib.parquet").stat().st_size
     assert_same_library(library, loaded.library)
-    assert list(loaded.library.iter_patterns()) == list(library.iter_patterns())
+    assert loaded.library.patterns() == library.patterns()
     assert loaded.spec.to_dict() == mixed_spec().to_dict()
-    assert loaded.params == {"scoring": "literal", "max_length": 4, "max_patterns": 200}
+    assert loaded.params == {"scoring": "adaptive", "max_length": 4, "max_patterns": 200,
+                             "factored": False, "has_actions": True}
     assert loaded.provenance == PROVENANCE and loaded.format_version == FORMAT_VERSION
 
 
@@ -128,7 +143,7 @@ def test_a_loaded_library_keeps_learning_like_the_original(tmp_path):
 @given(st.integers(0, 2 ** 31), st.integers(1, 3), st.integers(1, 60), st.integers(1, 5))
 def test_round_trip_is_exact_for_any_stream(tmp_path_factory, seed, episodes, steps, max_length):
     rng = np.random.default_rng(seed)
-    library = PatternLibrary(max_length)
+    library = PatternLibrary(max_length, has_actions=True)
     for _ in range(episodes):
         library.learn(random_episode(rng, steps))
     path = tmp_path_factory.mktemp("h") / "lib.parquet"
@@ -151,22 +166,31 @@ def test_a_library_without_a_spec_round_trips(tmp_path):
 
 # --- file layout and writing --------------------------------------------------------------
 
-def test_file_layout_patterns_are_symbol_lists_with_token_sizes(tmp_path):
-    library = PatternLibrary(3)
-    library.learn(Episode.from_steps([((), (5,)), ((1,), (6, 7)), ((), (5,)), ((1, 2), ())]))
+def test_file_layout_patterns_are_token_lists_of_a_view(tmp_path):
+    library = PatternLibrary(1, has_actions=True)
+    library.learn(Episode.from_steps([((), (5,)), ((1,), (6, 7)), ((), (5,))]))
     save(tmp_path / "lib.parquet", library)
     schema = pq.read_schema(tmp_path / "lib.parquet")
     assert schema.field("pattern").type == pa.list_(pa.field("item", pa.int32(), nullable=False))
     info = json.loads(schema.metadata[METADATA_KEY])
-    assert (info["format"], info["version"]) == ("slearn-library", 1)
+    assert (info["format"], info["version"]) == ("slearn-library", 2)
     rows = pq.read_table(tmp_path / "lib.parquet").to_pylist()
     assert [r["table"] for r in rows] == sorted((r["table"] for r in rows),
-                                                key=["vocabulary", "token", "pattern"].index)
-    patterns = [(r["pattern"], r["token_sizes"]) for r in rows if r["table"] == "pattern"]
-    # a step with two observations, one without actions, one without observations
-    assert patterns == [([5, 1, 6, 7], [1, 1, 2]), ([6, 7, 5], [2, 0, 1]), ([5, 1, 2], [1, 2, 0])]
-    assert pq.ParquetFile(tmp_path / "lib.parquet").metadata.num_row_groups == 3
-    assert pq.ParquetFile(tmp_path / "lib.parquet").metadata.row_group(2).column(9).compression == "ZSTD"
+                                                key=["vocabulary", "token", "view", "pattern"].index)
+    tokens = {i: (r["token_kind"], tuple(r["token_symbols"]))
+              for i, r in enumerate(r for r in rows if r["table"] == "token")}
+    patterns = [([tokens[t] for t in r["pattern"]], r["count"], r["view"])
+                for r in rows if r["table"] == "pattern"]
+    obs, act = 0, 1
+    # every context of at most one step before each observation: the action alone, then the
+    # observation before it too; a step with two observations is one token of the joint view
+    assert patterns == [([(act, (1,)), (obs, (6, 7))], 1, 0),
+                        ([(obs, (5,)), (act, (1,)), (obs, (6, 7))], 1, 0),
+                        ([(act, ()), (obs, (5,))], 1, 0),
+                        ([(obs, (6, 7)), (act, ()), (obs, (5,))], 1, 0)]
+    [view] = [r for r in rows if r["table"] == "view"]
+    assert view["channel"] == "*" and len(view["view_weights"]) == 2 * 3
+    assert pq.ParquetFile(tmp_path / "lib.parquet").metadata.num_row_groups == 4
 
 
 def test_the_same_library_gives_the_same_bytes(tmp_path):
@@ -297,7 +321,7 @@ def test_a_library_from_a_newer_format_version_is_refused(good, tmp_path):
     newer = with_metadata(good, tmp_path, lambda info: info.update(version=FORMAT_VERSION + 1))
     with pytest.raises(LibraryFormatError) as err:
         load_library(newer)
-    assert "library format version 2 is newer than this slearn" in one_line(err)
+    assert f"library format version {FORMAT_VERSION + 1} is newer than this slearn" in one_line(err)
     assert "upgrade slearn" in one_line(err)
 
 
@@ -334,7 +358,7 @@ def test_describe_gives_counts_histogram_and_decoded_top_patterns(tmp_path):
         vocabulary.symbol("cmd", value)
     for k in range(1, 7):
         vocabulary.symbol("pos", k)
-    library = PatternLibrary()
+    library = LiteralLibrary()
     # positions 1..6 are symbols 2..7; "3 R 4 R 5 L 4 R 5 L 4 L 3 L 2" (the paper's example)
     library.learn(Episode.from_pairs([4], [1, 1, 0, 1, 0, 0, 0], [5, 6, 5, 6, 5, 4, 3]))
     save_library(tmp_path / "p.parquet", library, vocabulary, spec=None, params={}, provenance={})
@@ -361,9 +385,9 @@ def pointer_vocab(order) -> Vocabulary:
     return vocabulary
 
 
-def learn_named(vocabulary: Vocabulary, walks: list[str]) -> PatternLibrary:
-    """Walks like ``"3 R 4 L 3"`` learned with the vocabulary's own symbols."""
-    library = PatternLibrary()
+def learn_named(vocabulary: Vocabulary, walks: list[str]) -> LiteralLibrary:
+    """Walks like ``"3 R 4 L 3"`` learned by the paper's rule with the vocabulary's symbols."""
+    library = LiteralLibrary()
     for walk in walks:
         words = walk.split()
         steps = [((), (vocabulary.symbol("pos", int(words[0])),))]
@@ -384,11 +408,11 @@ def named_patterns(loaded) -> dict[tuple, tuple[int, int]]:
 
 
 def loaded(vocabulary, library, spec=None, path=None):
-    from slearn.storage import LoadedLibrary
-    return LoadedLibrary(library, vocabulary, spec, {"scoring": "adaptive"}, dict(PROVENANCE), 1, path)
+    from slearn.storage import LoadedLibrary, library_params
+    return LoadedLibrary(library, vocabulary, spec, library_params(library), dict(PROVENANCE), 2, path)
 
 
-def test_merge_adds_counts_keeps_the_newest_recency_and_remaps_symbols():
+def test_merge_adds_counts_takes_recency_on_one_clock_and_remaps_symbols():
     walks_a = ["3 R 4 R 5 L 4 R 5 L 4 L 3", "4 R 5 L 4"]
     walks_b = ["5 L 4 R 5 R 6 L 5", "3 R 4 R 5"]
     va = pointer_vocab([("cmd", "L"), ("cmd", "R")])
@@ -398,11 +422,11 @@ def test_merge_adds_counts_keeps_the_newest_recency_and_remaps_symbols():
     assert merged.library.clock == a.library.clock + b.library.clock
     pa_, pb, pm = named_patterns(a), named_patterns(b), named_patterns(merged)
     assert set(pm) == set(pa_) | set(pb)
-    for key, (count, age) in pm.items():
+    for key, (count, age) in pm.items():  # as one run over a's episodes, then b's
         ca, aa = pa_.get(key, (0, None))
         cb, ab = pb.get(key, (0, None))
         assert count == ca + cb
-        assert age == min(x for x in (aa, ab) if x is not None)
+        assert age == (ab if ab is not None else aa + b.library.clock)
     assert merged.vocabulary.get_symbol("pos", 6) is not None
     assert merged.provenance["inputs"] == PROVENANCE["inputs"] * 2
     # the merged library keeps learning like any library
@@ -421,7 +445,7 @@ def test_merge_equals_learning_both_when_parses_do_not_interact():
 def test_merge_refuses_another_max_length():
     v = pointer_vocab([])
     short = PatternLibrary(3)
-    with pytest.raises(SpecError, match="cannot merge a.parquet and library B: max_length 5 vs 3"):
+    with pytest.raises(SpecError, match="cannot merge a.parquet and library B: max_length 6 vs 3"):
         merge_libraries(loaded(v, PatternLibrary(), path="a.parquet"), loaded(v, short))
 
 
@@ -466,23 +490,24 @@ def rewrite(source, target, change):
     table = change(pq.read_table(source))
     names = table.column("table").to_pylist()
     with pq.ParquetWriter(target, table.schema) as writer:
-        for name in ("vocabulary", "token", "pattern"):
+        for name in ("vocabulary", "token", "view", "pattern"):
             rows = [i for i, n in enumerate(names) if n == name]
-            writer.write_table(table.slice(rows[0], len(rows)))
+            if rows:
+                writer.write_table(table.slice(rows[0], len(rows)))
 
 
 def test_parent_column_names_each_pattern_prefix_and_is_only_a_hint(tmp_path):
-    library = learned(seed=4)
+    library = learned_literal(seed=4)
     save(tmp_path / "lib.parquet", library)
     rows = pq.read_table(tmp_path / "lib.parquet").to_pylist()
     patterns = [r for r in rows if r["table"] == "pattern"]
     for row in patterns:
         if row["parent"] >= 0:
             prefix = patterns[row["parent"]]
-            assert len(prefix["token_sizes"]) == len(row["token_sizes"]) - 2
+            assert len(prefix["pattern"]) == len(row["pattern"]) - 2
             assert row["pattern"][: len(prefix["pattern"])] == prefix["pattern"]
         else:
-            assert len(row["token_sizes"]) == 3
+            assert len(row["pattern"]) == 3
 
     def scramble(table):
         parent = np.asarray(table.column("parent").fill_null(0))
@@ -496,9 +521,9 @@ def test_parent_column_names_each_pattern_prefix_and_is_only_a_hint(tmp_path):
 
 
 def test_wrong_parent_hints_that_undercount_nodes_still_rebuild_exactly():
-    library = learned(seed=6, episodes=4, steps=2_000)
+    library = learned_literal(seed=6, episodes=4, steps=2_000)
     arrays = library.export()
-    right = PatternLibrary.from_export({**arrays, "pattern_parent": library.pattern_parents()},
+    right = LiteralLibrary.from_export({**arrays, "pattern_parent": library.pattern_parents()},
                                        library.tokens, library.clock, library.max_length)
     assert_same_library(library, right)
     # 1 pattern O A O then 2,000 unrelated O A O A O patterns, all "hinted" to the first:
@@ -509,7 +534,7 @@ def test_wrong_parent_hints_that_undercount_nodes_still_rebuild_exactly():
     synthetic = {"pattern_offsets": np.concatenate([[0], 3 + 5 * np.arange(n + 1)]).astype(np.int64),
                  "pattern_tokens": flat, "count": np.arange(n + 1) + 1, "last_seen": np.arange(n + 1)}
     hints = np.concatenate([[-1], np.zeros(n, np.int64)])
-    plain = PatternLibrary.from_export(synthetic, TokenTable(), n + 1, 2)
-    hinted = PatternLibrary.from_export({**synthetic, "pattern_parent": hints}, TokenTable(), n + 1, 2)
+    plain = LiteralLibrary.from_export(synthetic, TokenTable(), n + 1, 2)
+    hinted = LiteralLibrary.from_export({**synthetic, "pattern_parent": hints}, TokenTable(), n + 1, 2)
     assert_same_library(plain, hinted)
     assert len(hinted) == n + 1 and hinted.export()["count"].tolist() == list(range(1, n + 2))
