@@ -48,7 +48,7 @@ class _Params(ctypes.Structure):
     _fields_ = [("n_views", ctypes.c_int32), ("K", ctypes.c_int32), ("has_actions", ctypes.c_int32),
                 ("empty_action", ctypes.c_int32), ("empty_observation", ctypes.c_int32),
                 ("beta", ctypes.c_double), ("floor_", ctypes.c_double), ("threshold", ctypes.c_double),
-                ("burn_in", ctypes.c_double), ("fresh_tie", ctypes.c_double)]
+                ("fresh_tie", ctypes.c_double)]
 
 
 def load_c_learn(folder: Path):
@@ -81,7 +81,7 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
                    len(tree.node_slots) - 1, len(tree.entry_slots) - 1)
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
-                     float(np.log(1.0 / mixer.FALSE_ALARM)), float(mixer.BURN_IN),
+                     float(np.log(1.0 / mixer.FALSE_ALARM)),
                      float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]))
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,

@@ -43,12 +43,12 @@ def _row(what: str, result: Evaluation, last: str) -> str:
 def _frozen(train: list, heldout, vocabulary) -> tuple[Evaluation, int]:
     """The frozen replay, baselines counted on the training episodes as ``slearn replay``
     does; and the library's size."""
-    library = PatternLibrary()
+    library = PatternLibrary(vocabulary=vocabulary)
+    baselines = Baselines(library)
     for episode in train:
-        library.learn(episode)
-    baselines = Baselines(library.max_length - 1)
-    for episode in train:
-        baselines.learn_tokens(library.tokens.tokenize(episode))
+        codes = library.encode(episode)
+        library.run(codes, learn=True, record=False)
+        baselines.learn(codes)
     result = evaluate(library, [("heldout", heldout, None)], vocabulary, baselines=baselines)
     return result, len(library)
 

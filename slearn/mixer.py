@@ -92,12 +92,28 @@ def with_views(mixer: Mixer, views: int) -> Mixer:
 @helper
 def select(w, v, cand, n):
     """The awake expert of largest weight among contexts ``1..n`` of view ``v``:
-    ``(length, kind)``. ``cand[k, kind]`` is the expert's outcome, or -1 (asleep)."""
+    ``(length, kind)``. ``cand[k, kind]`` is the expert's outcome, or -1 (asleep).
+
+    A sleeping expert lends its weight to its shorter twins (same kind): when the leader's
+    context is missing from the history (never seen, or longer than the history), its own
+    kind at the longest context found speaks, as PPM backs off to a shorter context.
+    Equal weights go to the longest context.
+    """
     best_w, best_k, best_kind = -1.0, 0, 0
-    for k in range(1, n + 1):
+    lent_frequent, lent_recent, lent_fresh = 0.0, 0.0, 0.0  # no allocation in helpers
+    for k in range(w.shape[1], 0, -1):
         for kind in range(N_KINDS):
-            if cand[k, kind] >= 0 and w[v, k - 1, kind] > best_w:
-                best_w, best_k, best_kind = w[v, k - 1, kind], k, kind
+            lent = lent_frequent if kind == FREQUENT else lent_recent if kind == RECENT else lent_fresh
+            x = max(w[v, k - 1, kind], lent)
+            if k <= n and cand[k, kind] >= 0:
+                if x > best_w:
+                    best_w, best_k, best_kind = x, k, kind
+            elif kind == FREQUENT:
+                lent_frequent = x
+            elif kind == RECENT:
+                lent_recent = x
+            else:
+                lent_fresh = x
     return best_k, best_kind
 
 

@@ -113,8 +113,8 @@ def test_pointer_arm_layout_learns_and_replays(pointer_arm, tmp_path):
         totals = _replay(library, sorted((sub / "heldout").iterdir()))
         assert totals["events"] == ARM_TRIALS
         accuracy[joints] = totals["accuracy"]
-    assert accuracy[1] > 0.99
-    assert accuracy[1] > accuracy[2] > accuracy[4] > 0.1  # the curse, measured in bench_arm
+    print(accuracy)
+    assert min(accuracy.values()) > 0.99  # per-joint views: no curse of dimensionality
 
 
 def test_episodes_are_reproducible_bit_for_bit(tmp_path):

@@ -8,7 +8,8 @@
  * context of 1..K tokens just before it is looked up in a tree read backwards from the
  * view's root; the experts of slearn/mixer.py (frequent, recent and fresh outcome of each
  * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
- * CUSUM watches the trusted frequency expert, and every context counts one more
+ * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
+ * PPM-C's estimate in its context), and every context counts one more
  * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
  *
  * Hash tables hold record ids; a record's key is (parent, token) for nodes and
@@ -117,29 +118,32 @@ static void update(double *w, const int32_t *cand, int n, int K, int32_t truth,
     }
 }
 
-static int32_t trusted(const double *w, const int32_t *cand, int n, int32_t epoch) {
+static int trusted_length(const double *w, const int32_t *cand, int n, int32_t epoch) {
     int kind = epoch == 0 ? FREQUENT : FRESH;
     double best = -1.0;
-    int32_t out = -1;
+    int out = 0;
     for (int k = 1; k <= n; k++)
         if (cand[k * KINDS + kind] >= 0 && w[(k - 1) * KINDS + kind] >= best) {
             best = w[(k - 1) * KINDS + kind];
-            out = cand[k * KINDS + kind];
+            out = k;
         }
     return out;
 }
 
-static int detect(double *w, double *det, int K, int32_t said, int32_t truth,
-                  double threshold, double burn_in, double fresh_tie) {
-    if (said < 0) return 0;
-    int miss = said != truth;
-    if (det[2] >= burn_in) {
-        double q0 = (det[1] + 0.5) / (det[2] + 1.0);
-        double q1 = 0.5 * (1.0 + q0);
-        double step = miss ? log(q1 / q0) : log((1.0 - q1) / (1.0 - q0));
-        det[0] = det[0] + step > 0.0 ? det[0] + step : 0.0;
-    }
-    det[1] += miss ? 1.0 : 0.0;
+static double hit_probability(const tree_t *t, const int64_t *weight, int32_t node, int32_t e) {
+    int64_t total = 0, distinct = 0;
+    for (int32_t f = t->first[node]; f != -1; f = t->next[f])
+        if (weight[f] > 0) total += weight[f], distinct++;
+    return total > 0 ? (double)weight[e] / (double)(total + distinct) : 0.0;
+}
+
+static int detect(double *w, double *det, int K, int hit, double p_hit,
+                  double threshold, double fresh_tie) {
+    double q0 = 1.0 - p_hit;
+    double q1 = 0.5 * (1.0 + q0);
+    double step = hit ? log((1.0 - q1) / (1.0 - q0)) : log(q1 / q0);
+    det[0] = det[0] + step > 0.0 ? det[0] + step : 0.0;
+    det[1] += hit ? 0.0 : 1.0;
     det[2] += 1.0;
     if (det[0] < threshold) return 0;
     det[0] = det[1] = det[2] = 0.0;
@@ -154,7 +158,7 @@ static int detect(double *w, double *det, int K, int32_t said, int32_t truth,
 
 typedef struct {
     int32_t n_views, K, has_actions, empty_action, empty_observation;
-    double beta, floor_, threshold, burn_in, fresh_tie;
+    double beta, floor_, threshold, fresh_tie;
 } params_t;
 
 int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch,
@@ -192,9 +196,14 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 }
                 double *w = &weights[(int64_t)v * K * KINDS];
                 update(w, cand, m, K, x, p->beta, p->floor_);
-                if (detect(w, &detector[v * 3], K, trusted(w, cand, m, epoch[v]), x,
-                           p->threshold, p->burn_in, p->fresh_tie))
-                    epoch[v] += 1;
+                int kt = trusted_length(w, cand, m, ep);
+                if (kt > 0) {
+                    int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];
+                    double p_hit = hit_probability(t, ep > 0 ? t->fresh : t->count, nd, b);
+                    if (detect(w, &detector[v * 3], K, t->outcome[b] == x, p_hit, p->threshold,
+                               p->fresh_tie))
+                        epoch[v] += 1;
+                }
                 ep = epoch[v];
                 for (int k = 1; k <= n; k++) {
                     int32_t nd = nodes[k];
