@@ -2,8 +2,8 @@
 
 - learning events/s on a long pointer stream (target >= 1,000,000 on one core);
 - online predict-then-learn steps/s (target >= 200,000);
-- RAM per stored pattern at 10^6 patterns over a vocabulary of 10^4 symbols
-  (target <= 200 bytes), for the library and for the containment index.
+- RAM per stored pattern (a context with one outcome) at 10^6 patterns over a vocabulary
+  of 10^4 symbols, everything prediction needs included (target <= 100 bytes).
 
 Run: ``python bench/bench_core.py`` (numba compiles once; the first figures exclude it).
 """
@@ -15,8 +15,6 @@ import time
 import numpy as np
 
 from slearn.library import PatternLibrary
-from slearn.online import run_online
-from slearn.predictor import Predictor
 from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.stream import Episode
 
@@ -27,7 +25,7 @@ def pointer_stream(trials: int, seed: int = 0) -> Episode:
 
 def warm_up() -> None:
     library = PatternLibrary()
-    run_online(Predictor(library), pointer_stream(200))
+    library.run(library.encode(pointer_stream(200)), learn=True, record=True, top_k=1)
     library.learn(pointer_stream(200))
 
 
@@ -45,12 +43,14 @@ def bench_learning(trials: int) -> None:
 def bench_online(trials: int) -> None:
     for condition in ("simple", "error", "delay"):
         episode = simulate(PointerConfig(condition, trials=trials, seed=2)).to_episode()
-        predictor = Predictor(PatternLibrary())
+        library = PatternLibrary()
         started = time.perf_counter()
-        result = run_online(predictor, episode)
+        codes = library.encode(episode)
+        reports = library.run(codes, learn=True, record=True, top_k=1)
         seconds = time.perf_counter() - started
+        correct = reports.predicted[1:] == codes.token[1:]
         print(f"online {condition:<7} {len(episode) - 1:>11,} steps   {seconds:6.2f} s  "
-              f"{(len(episode) - 1) / seconds:>12,.0f} steps/s   (accuracy {result.correct.mean():.1%})")
+              f"{(len(episode) - 1) / seconds:>12,.0f} steps/s   (accuracy {correct.mean():.1%})")
 
 
 def bench_memory(target_patterns: int, vocabulary: int) -> None:
@@ -59,20 +59,17 @@ def bench_memory(target_patterns: int, vocabulary: int) -> None:
     started = time.perf_counter()
     steps = 0
     while len(library) < target_patterns:
-        n = 200_000
+        n = 20_000
         obs = rng.zipf(1.3, n + 1) % vocabulary
         actions = vocabulary + rng.integers(0, 4, n)
         library.learn(Episode.from_pairs(obs[:1], actions, obs[1:]))
         steps += n
     learn_seconds = time.perf_counter() - started
-    started = time.perf_counter()
-    library.context_index()
-    index_seconds = time.perf_counter() - started
     n = len(library)
     print(f"memory {n:,} patterns from {steps:,} steps over {vocabulary + 4:,} symbols "
-          f"(learned in {learn_seconds:.1f} s, index built in {index_seconds:.1f} s)")
-    print(f"       library {library.nbytes() / n:6.1f} bytes/pattern (arrays as allocated)")
-    print(f"       index   {library.index_nbytes() / n:6.1f} bytes/pattern (only when predicting)")
+          f"(learned in {learn_seconds:.1f} s)")
+    print(f"       library {library.nbytes() / n:6.1f} bytes/pattern (arrays as allocated, "
+          f"prediction needs nothing else)")
 
 
 if __name__ == "__main__":

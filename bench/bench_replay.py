@@ -32,12 +32,13 @@ from slearn.replay.evaluate import evaluate
 
 
 def _train(train_trials: int) -> tuple[PatternLibrary, Baselines]:
-    library = PatternLibrary()
-    baselines = Baselines(library.max_length - 1)
+    library = PatternLibrary(vocabulary=pointer_vocabulary())
+    baselines = Baselines(library)
     for seed in range(3):
         episode = simulate(PointerConfig("simple", trials=train_trials, seed=seed)).to_episode()
-        library.learn(episode)
-        baselines.learn_tokens(library.tokens.tokenize(episode))
+        codes = library.encode(episode)
+        library.run(codes, learn=True, record=False)
+        baselines.learn(codes)
     return library, baselines
 
 
@@ -57,33 +58,29 @@ def bench_core(trials: int, train_trials: int, condition: str, online: bool) -> 
 
 
 def bench_predictor(trials: int, train_trials: int, online: bool) -> dict:
-    """Predictions/s of :func:`slearn.online.run_online` alone (the floor of the core; best of 3)."""
-    from slearn.online import run_online
-    from slearn.predictor import Predictor
-
+    """Predictions/s of the library's own run (the floor of the core; best of 3)."""
     episode = simulate(PointerConfig("simple", trials=trials, seed=3)).to_episode()
     best = None
     for _ in range(3):
         library, _ = _train(train_trials)
-        predictor = Predictor(library)
         started = time.perf_counter()
-        result = run_online(predictor, episode, learn=online)
+        codes = library.encode(episode)
+        reports = library.run(codes, learn=online, record=True)
         seconds = time.perf_counter() - started
-        best = (seconds, result) if best is None or seconds < best[0] else best
-    seconds, result = best
-    return {"what": f"run_online alone simple {'online' if online else 'frozen'}",
-            "predictions": len(result.actual), "seconds": round(seconds, 4),
-            "predictions_per_s": round(len(result.actual) / seconds),
-            "accuracy": round(float(result.correct.mean()), 4)}
+        best = (seconds, codes, reports) if best is None or seconds < best[0] else best
+    seconds, codes, reports = best
+    predicted = reports.context
+    correct = reports.predicted[predicted] == codes.token[predicted]
+    return {"what": f"library.run alone simple {'online' if online else 'frozen'}",
+            "predictions": int(predicted.sum()), "seconds": round(seconds, 4),
+            "predictions_per_s": round(int(predicted.sum()) / seconds),
+            "accuracy": round(float(correct.mean()), 4)}
 
 
 def bench_command(trials: int, train_trials: int, folder: Path, annotate: bool) -> dict:
     """Predictions/s of the whole ``slearn replay`` command on a recorded log (second run)."""
     from slearn.cli import main
-    from slearn.serialize import read_episodes
-    from slearn.spec import pointer_spec
-    from slearn.storage import file_record, save_library
-    from slearn.vocabulary import Vocabulary
+    from slearn.learn import learn_files
 
     library_path, log = folder / "library.parquet", folder / "held_out.mcap"
     if not library_path.exists():
@@ -91,11 +88,7 @@ def bench_command(trials: int, train_trials: int, folder: Path, annotate: bool) 
         for seed, path in enumerate(training):
             record_pointer(PointerConfig("simple", trials=train_trials, seed=seed), path)
         record_pointer(PointerConfig("simple", trials=trials, seed=3), log)
-        library, vocabulary = PatternLibrary(), Vocabulary()
-        for _, episode, _ in read_episodes(training, pointer_spec(), vocabulary):
-            library.learn(episode)
-        save_library(library_path, library, vocabulary, spec=pointer_spec(), params={},
-                     provenance={"inputs": [file_record(p) for p in training]})
+        learn_files(training, library_path)
     args = ["replay", str(library_path), str(log), "--json", "--quiet"]
     if annotate:
         args += ["--write-mcap", str(folder / "annotated.mcap"), "--force"]

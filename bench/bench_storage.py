@@ -113,7 +113,7 @@ def bench_pointer(folder: Path, trials: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=2_950_000,
+    parser.add_argument("--steps", type=int, default=128_000,
                         help="random-walk steps (about 10^6 patterns at the default)")
     parser.add_argument("--trials", type=int, default=10_000, help="pointer trials")
     args = parser.parse_args()

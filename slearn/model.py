@@ -102,6 +102,8 @@ class SequenceModel:
 
         if self.library is None:
             raise ParameterError("the model has learned nothing yet: nothing to save")
+        if not overwrite and os.path.lexists(path):
+            raise ParameterError(f"{os.fspath(path)} already exists: pass overwrite=True to replace it")
         save_library(path, self.library, self.vocabulary, spec=None, params={"form": self._form},
                      provenance={}, overwrite=overwrite)
 

@@ -17,7 +17,7 @@ belongs to the table named in its ``table`` column, each table has its own row g
     token_symbols   list<int32>    token       the token's symbols
     view_epoch      int32          view        alarms of the view's change detector
     view_detector   list<float64>  view        its test: cusum, misses, trials
-    view_weights    list<float64>  view        expert log-weights, (context length, kind)
+    view_weights    list<float64>  view        expert weights over the leader, (context length, kind)
     view            int32          pattern     the view the pattern belongs to
     pattern         list<int32>    pattern     tokens: the context, oldest first, then the outcome
     parent          int32          pattern     literal libraries: row of the prefix, -1

@@ -63,11 +63,13 @@ def _progress(total: int):
 @click.option("--phase-ms", type=FiniteFloat(0, 86_400_000),
               help="--mode tick: sample the observations this long after each tick's commands "
                    "(default one tick).")
-@click.option("--max-length", type=LENGTH, help="Longest pattern in steps [default 5].")
+@click.option("--max-length", type=LENGTH, help="Longest context in steps [default 6; 5 for --scoring literal].")
 @click.option("--max-patterns", type=PATTERNS,
-              help="Forget the rarest, oldest patterns beyond this many [default: keep all].")
+              help="Forget the rarest, oldest patterns beyond this many (down to 90 % of it) "
+                   "[default: keep all].")
 @click.option("--scoring", type=click.Choice(SCORING_RULES),
-              help="Scoring rule stored for predictors [default adaptive].")
+              help="adaptive: every occurrence counted, contexts mixed by their record; literal: "
+                   "the paper's parse library, longest match first [default adaptive].")
 @click.option("--resume", type=click.Path(),
               help="Go on learning from this library (its spec, vocabulary and parameters).")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
