@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from slearn.cli import main
+from slearn.recorders.arm import ArmConfig, simulate_arm
 from slearn.recorders.pointer import BIN_DEG, PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.spec import load_spec
@@ -137,6 +138,76 @@ def test_the_suggested_pointer_spec_bins_the_joint_as_the_sensor_does(ros2_point
     assert (bins.count, bins.wrap, bins.unit) == (36, True, "rad")
     assert bins.range == pytest.approx((0.0, 2 * math.pi))
     assert bins.label(5) == "[50°, 60°)"
+
+
+ARM_JOINTS, ARM_TRAIN_TRIALS, ARM_HELDOUT_TRIALS = 3, 4_000, 1_000
+ARM_TYPES = {"/joint_states": "sensor_msgs/msg/JointState",
+             "/forward_position_controller/commands": "std_msgs/msg/Float64MultiArray"}
+
+
+def arm_messages(seed: int, trials: int):
+    """A 3-joint arm logged the way ros2_control logs it: one ``JointState`` with every
+    joint's position (radians, the centre of the sensed bin) and one ``Float64MultiArray``
+    command per trial (+-1 for the commanded joint, 0 for the others)."""
+    run = simulate_arm(ArmConfig(ARM_JOINTS, trials, seed, sensors="all"))
+    types = STORE.types
+    names = [f"joint{j + 1}" for j in range(ARM_JOINTS)]
+
+    def state(t, labels):
+        stamp = types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9)
+        message = types["sensor_msgs/msg/JointState"](
+            header=types["std_msgs/msg/Header"](stamp=stamp, frame_id="base"), name=names,
+            position=np.radians((np.asarray(labels, float) - 0.5) * BIN_DEG),
+            velocity=np.zeros(0), effort=np.zeros(0))
+        return "/joint_states", t, STORE.serialize_cdr(message, ARM_TYPES["/joint_states"])
+
+    def command(t, joint, direction):
+        data = np.zeros(ARM_JOINTS)
+        data[joint] = direction
+        layout = types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+        message = types["std_msgs/msg/Float64MultiArray"](layout=layout, data=data)
+        return ("/forward_position_controller/commands", t,
+                STORE.serialize_cdr(message, "std_msgs/msg/Float64MultiArray"))
+
+    out = [state(T0, run.positions[0])]
+    for k in range(trials):
+        t = T0 + (k + 1) * 100_000_000
+        out += [command(t, int(run.joint[k]), 1.0 if run.commands[k] else -1.0),
+                state(t + 50_000_000, run.positions[k + 1])]
+    return out
+
+
+def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_path):
+    """Several joints in one JointState and one Float64MultiArray command: every joint is
+    its own view, so frozen replay reaches the deterministic ceiling (slearn 0.1: 11.9 %)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer as BagWriter
+
+    def record(folder, messages):
+        with BagWriter(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            connections = {t: writer.add_connection(t, m, typestore=STORE) for t, m in ARM_TYPES.items()}
+            for topic, time_ns, data in messages:
+                writer.write(connections[topic], time_ns, data)
+        return folder
+
+    # three training logs, so that each joint's random walk has visited every bin
+    train = [record(tmp_path / f"train{seed}", arm_messages(seed, ARM_TRAIN_TRIALS)) for seed in range(3)]
+    heldout = record(tmp_path / "heldout", arm_messages(3, ARM_HELDOUT_TRIALS))
+    spec = tmp_path / "arm.toml"
+    assert invoke("info", train[0], "--suggest-spec", spec).exit_code == 0
+    channels = load_spec(spec).channels  # used as written, no edits
+    roles = {(c.topic, c.field): c.role for c in channels}
+    assert {f for (t, f), r in roles.items() if t.endswith("commands") and r == "action"} \
+        == {f"data[{j}]" for j in range(ARM_JOINTS)}
+    assert {f for (t, f), r in roles.items() if t == "/joint_states" and r == "observation"} \
+        == {f"position[name=joint{j + 1}]" for j in range(ARM_JOINTS)}
+    library = tmp_path / "arm.parquet"
+    learned = invoke("learn", *train, "--spec", spec, "-o", library, "-q")
+    assert learned.exit_code == 0, learned.output
+    doc = json.loads(invoke("replay", library, heldout, "--json", "-q").stdout)
+    assert doc["totals"]["events"] == ARM_HELDOUT_TRIALS  # steps; every joint predicted in each
+    assert [c["events"] for c in doc["channels"]] == [ARM_HELDOUT_TRIALS] * ARM_JOINTS
+    assert doc["totals"]["accuracy"] >= 0.99  # every joint right
+    assert all(c["accuracy"] >= 0.99 for c in doc["channels"])
 
 
 @pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
