@@ -59,6 +59,7 @@ _OP_DATA_END = 0x0F
 _OP_INVALID = 0x00  # reserved: zero bytes where a record should be
 
 _RECORD_HEAD = struct.Struct("<BQ")
+_LAST_TIME_NS = 2**63 - 1
 _MESSAGE_HEAD = struct.Struct("<HIQQ")
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
@@ -670,6 +671,8 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
             check_room(end, n_records, room)
         if op == _OP_MESSAGE:
             cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
+            if log_time > _LAST_TIME_NS:  # times are int64 downstream; no clock reads 2262 or later
+                raise ValueError(f"message at +{pos} has a log time of {log_time} ns, past the year 2262")
             channel = channels.get(cid)
             if wanted is None or channel is None or channel.topic in wanted:
                 out.append((log_time, publish_time, seq, cid, body + 22, nxt))

@@ -302,3 +302,14 @@ def test_json_output_of_a_salvaged_learn_is_one_document(pointer, tmp_path):
     result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet", "--json")
     assert result.exit_code == EXIT_TRUNCATED
     assert json.loads(result.stdout)["truncated"][0].startswith(str(damaged))
+
+
+def test_a_log_time_past_int64_is_damage_not_a_traceback(tmp_path):
+    good = mb.chunk(b"".join(mb.message(i, b'{"v": %d}' % (i % 2)) for i in range(5)))
+    bad = mb.chunk(mb.message(2**64 - 1, b'{"v": 1}'))
+    path = tmp_path / "x.mcap"
+    path.write_bytes(mb.log(good, bad))
+    result = run("learn", "-q", path, "--channel", "/a:v:observation", "-o", tmp_path / "lib.parquet")
+    assert result.exit_code == EXIT_TRUNCATED, result.output
+    assert "past the year 2262" in result.stderr
+    assert load_library(tmp_path / "lib.parquet").library.clock == 5
