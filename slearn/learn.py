@@ -256,17 +256,19 @@ def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: 
 
 
 def build_provenance(paths: list[str], previous: dict | None = None,
-                     window: TimeSlice | None = None) -> dict:
+                     window: TimeSlice | None = None, records: list[dict] | None = None) -> dict:
     """Provenance of a library learned from ``paths`` (after ``previous``'s inputs, if any).
 
     Each input is ``{path, size_bytes, sha256}``, plus ``slice`` when only a slice of its
-    time was learned.
+    time was learned. ``records`` are those of ``paths`` when already computed (by the
+    workers that read the logs: :mod:`slearn.distributed`).
 
     Raises:
         InputError: a log cannot be read, or ``SOURCE_DATE_EPOCH`` is not an integer.
     """
     inputs = list(previous.get("inputs", [])) if previous else []
-    inputs += [{**log_record(p), **({"slice": window.to_dict()} if window else {})} for p in paths]
+    records = records if records is not None else [log_record(p) for p in paths]
+    inputs += [{**r, **({"slice": window.to_dict()} if window else {})} for r in records]
     stamp, source = source_date_epoch(), "SOURCE_DATE_EPOCH"
     if stamp is None:
         times = [int(os.stat(p).st_mtime) for p in paths]

@@ -75,3 +75,19 @@ def warnings_on_stderr() -> Iterator[None]:
             for text in shown:
                 click.echo(f"slearn: warning: {text}", err=True)
 
+
+
+def ray_options(func: Callable) -> Callable:
+    """Add --workers and --ray (run the job's tasks on Ray: :mod:`slearn.cluster`)."""
+    func = click.option("--ray", "ray_address", metavar="ADDRESS",
+                        help="Run on the Ray cluster at ADDRESS (host:6379, or auto: the one "
+                             "`ray start` began here). Every node must see the logs at the same "
+                             "path. Needs pip install 'slearn[ray]'.")(func)
+    return click.option("--workers", type=click.IntRange(1, 4096), metavar="N",
+                        help="Run on a Ray instance of N CPUs started on this machine for the job "
+                             "(needs pip install 'slearn[ray]').")(func)
+
+
+def echo_progress(line: str) -> None:
+    """A progress line on stderr."""
+    click.echo(line, err=True)

@@ -9,7 +9,8 @@ import warnings
 import click
 
 from slearn.cli import EXIT_TRUNCATED
-from slearn.cli.common import CHANNEL_HELP, make_slice, slice_options, topic_list, warnings_on_stderr
+from slearn.cli.common import (CHANNEL_HELP, echo_progress, make_slice, ray_options, slice_options,
+                               topic_list, warnings_on_stderr)
 from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
 from slearn.files import refuse_inputs
@@ -74,6 +75,7 @@ def _progress(total: int):
               help="Go on learning from this library (its spec, vocabulary and parameters).")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
 @slice_options(split=True)
+@ray_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
 @click.pass_context
@@ -81,11 +83,14 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
             channels: tuple[str, ...], mode: str | None, tick_ms: float | None,
             phase_ms: float | None, max_length: int | None, max_patterns: int | None, scoring: str | None,
             resume: str | None, force: bool, start: str | None, end: str | None,
-            topics: str | None, split: float | None, quiet: bool, as_json: bool) -> None:
+            topics: str | None, split: float | None, workers: int | None, ray_address: str | None,
+            quiet: bool, as_json: bool) -> None:
     """Learn a pattern library from LOGS: MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files.
 
     Each log is an episode (or several, when it marks episode boundaries). Exits 3 when a
-    log was truncated: what could be read is learned and saved.
+    log was truncated: what could be read is learned and saved. With --workers or --ray,
+    each log is learned by a Ray task and the partial libraries are merged: the same
+    patterns, counts and recency as one process; the scoring weights follow the merge rule.
     """
     spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
     refuse_inputs(output, [spec_path] if spec_path else [])
@@ -98,10 +103,19 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings(), warnings_on_stderr():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
-        result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
-                             max_patterns=max_patterns, scoring=scoring, overwrite=force,
-                             progress=progress, on_episode=_progress(len(paths)) if progress else None,
-                             window=window)
+        if workers is not None or ray_address is not None:
+            from slearn.distributed import learn_on_ray
+
+            result = learn_on_ray(paths, output, workers=workers, address=ray_address, spec=spec,
+                                  resume=resume, max_length=max_length, max_patterns=max_patterns,
+                                  scoring=scoring, overwrite=force, progress=progress,
+                                  echo=echo_progress if progress else None, window=window)
+        else:
+            result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
+                                 max_patterns=max_patterns, scoring=scoring, overwrite=force,
+                                 progress=progress,
+                                 on_episode=_progress(len(paths)) if progress else None,
+                                 window=window)
     click.echo(json.dumps(result.to_dict()) if as_json else _summary(result))
     for report in result.truncated:
         click.echo(f"slearn: warning: {report.describe()}", err=True)
