@@ -497,7 +497,7 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
                 window: int | None = None, max_length: int = DEFAULT_MAX_LENGTH,
                 baseline_logs: Iterable[str | os.PathLike] | None = None,
                 keep_outcomes: bool = False, progress: bool = False,
-                time_slice: TimeSlice | None = None) -> Evaluation:
+                time_slice: TimeSlice | None = None, reader: Any = None) -> Evaluation:
     """Evaluate a saved library (or, with ``spec`` only, an empty one) on MCAP logs.
 
     The logs are read and binned as at learning time (the library's spec, fitted edges
@@ -518,6 +518,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         progress: progress on stderr.
         time_slice: replay only this slice of each log's time (``--split``: the held-out
             part); the baselines count each training log's slice the library learned.
+        reader: reads logs into episodes, as :func:`slearn.serialize.read_episodes` (the
+            default; :class:`slearn.distributed.RayReader` reads them on Ray).
 
     Data warnings (values outside a range, a spec without actions, too few events per
     channel) end up in the result's ``warnings``.
@@ -540,8 +542,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported in the result instead
         warnings.simplefilter("always", DataWarning)
-        baselines, fit = _fit_baselines(setup, baseline_logs, progress)
-        episodes = _read(logs, setup.spec, setup.vocabulary, progress, time_slice)
+        baselines, fit = _fit_baselines(setup, baseline_logs, progress, reader)
+        episodes = _read(logs, setup.spec, setup.vocabulary, progress, time_slice, reader)
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
                           window=window, baselines=baselines, baseline_fit=fit,
                           keep_outcomes=keep_outcomes, progress=progress)
@@ -557,11 +559,11 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
 
 
 def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary, progress: bool,
-          window: TimeSlice | dict[str, TimeSlice] | None = None
+          window: TimeSlice | dict[str, TimeSlice] | None = None, reader: Any = None
           ) -> Iterator[tuple[str, Episode, ReadReport]]:
     from slearn.serialize import read_episodes
 
-    yield from read_episodes(paths, spec, vocabulary, progress=progress, window=window)
+    yield from (reader or read_episodes)(paths, spec, vocabulary, progress, window)
 
 
 def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
@@ -644,7 +646,7 @@ def _training_slices(provenance: dict, training: list[str]) -> dict[str, TimeSli
 
 
 def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | None,
-                   progress: bool) -> tuple[Baselines | None, str]:
+                   progress: bool, reader: Any = None) -> tuple[Baselines | None, str]:
     paths = [os.fspath(p) for p in baseline_logs] if baseline_logs else setup.training_logs
     if not paths:
         return None, FIT_PREQUENTIAL
@@ -652,7 +654,7 @@ def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | N
     if progress:
         sys.stderr.write(f"replay: counting the baselines on {len(paths)} training log(s)\n")
     for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False,
-                               setup.training_slices if not baseline_logs else None):
+                               setup.training_slices if not baseline_logs else None, reader):
         baselines.learn(setup.library.encode(episode))
     setup.facts["baseline_logs"] = paths
     return baselines, FIT_TRAINING

@@ -1,196 +1,141 @@
-"""Learning many logs on Ray (``slearn learn --workers N`` / ``--ray ADDRESS``).
+"""Reading logs on Ray, so that learning and replaying many logs give one process's bytes.
 
-The logs are taken in the order a one-process run takes them. Each log is one task: it
-learns the log's episodes into a partial library, grown from empty (the share of a task
-is one log, so the result does not depend on how many workers or nodes ran it). The
-partials merge in a balanced tree of tasks with :func:`slearn.merge.merge_libraries`,
-each merge shifting the later library's recency by the earlier one's clock. The merge is
-associative, so the tree gives the bytes of merging the per-log libraries in order one
-after the other, as ``slearn merge`` does.
+Reading is most of the cost of learning (decoding and binning every message: on the
+pointer logs about 85 % of ``slearn learn``'s time, 95 % of a frozen replay's), and it
+depends on nothing but the log. So ``--workers N`` / ``--ray ADDRESS`` read the logs in
+Ray tasks, many at once, and the driver learns (or scores) their episodes in the order a
+one-process run takes them. The library, its scoring state included, and the replay
+report are then those of one process by construction (``tests/test_ray.py`` compares
+the bytes).
 
-What equals one process, exactly: the vocabulary and token tables, every pattern with
-its count and recency, their order, the clock, the spec, parameters and provenance (each
-task hashes its own log). What cannot: the scoring state (expert weights, change
-detectors, epochs and fresh counts) is trained by predicting each step with the library
-as it stood, which a task that starts from empty does not have; it follows the rule of
-:func:`~slearn.merge.merge_libraries` (the latest log's weights; an alarm in a later log
-starts the epoch). ``bench/bench_ray.py`` measures the accuracy this costs on held-out
-logs. A single log gives exactly the bytes of one process.
+A task reads one log with its own vocabulary and returns its episodes as arrays, with
+its vocabulary's ``(channel, value)`` names; the driver renumbers them into the run's
+vocabulary, registering the values it has not seen in the order the log first shows
+them, as one process would. At most ``2 x CPUs`` logs are in flight, so the driver holds
+a bounded number of read logs. Past what one core learns per second (the driver's
+share), :mod:`slearn.merge_tree` learns in the tasks too, at the price of the scoring
+state following the merge rule.
 
-Refused, because they would change the library silently: ``--max-patterns`` (one
-process forgets along the way, a merge only at the end) and ``--scoring literal`` (its
-parse depends on the whole run). ``--resume`` works: the resumed library is the first
-leaf. Errors keep one process's meaning: a bad log stops the job naming the file (exit
-1), a truncated log is learned as far as it reads (exit 3), and the output is written
-once, atomically, after every task succeeded. Range warnings are counted per log.
+Differences from one process: values outside a range are warned about per log (not
+counted over all logs), and quantile bins (``quantiles=N``) are still fitted by the
+driver, which reads those logs once more.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
-import time
 import warnings
-from pathlib import Path
-from typing import Callable
+from collections import Counter, deque
+from typing import Callable, Iterable, Iterator
 
-from slearn import __version__
-from slearn.cluster import (MAX_RETRIES, Rate, check_visible, gather, library_bytes,
-                            library_from_bytes, loaded_bytes, ray_session)
-from slearn.errors import DataWarning, InputError
-from slearn.files import check_output
-from slearn.learn import (LearnResult, _check_scoring, _new_job, _resumed_job, build_provenance,
-                          source_date_epoch)
-from slearn.library import PatternLibrary
+import numpy as np
+
+from slearn.cluster import MAX_RETRIES, Rate, check_visible, gather
+from slearn.errors import DataWarning, SpecError, TruncatedLogWarning
 from slearn.mcap_read import ReadReport
-from slearn.merge import merge_libraries
 from slearn.serialize import prepare_vocabulary, read_episodes
 from slearn.slicing import TimeSlice, slice_from_dict
 from slearn.spec import Spec
-from slearn.bags import log_record
-from slearn.storage import save_library
+from slearn.stream import Episode
 from slearn.vocabulary import Vocabulary
 
-# A partial library's provenance: the job writes the real one (every input, in order).
-_PARTIAL = {"slearn_version": __version__, "inputs": [], "time_unix": 0,
-            "time": "1970-01-01T00:00:00Z", "time_source": "a partial library of a Ray job"}
+IN_FLIGHT_PER_CPU = 2
 
 
-def learn_on_ray(paths: list[str | os.PathLike], output: str | os.PathLike, *,
-                 workers: int | None = None, address: str | None = None,
-                 spec: Spec | None = None, resume: str | os.PathLike | None = None,
-                 max_length: int | None = None, max_patterns: int | None = None,
-                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
-                 echo: Callable[[str], None] | None = None,
-                 window: TimeSlice | None = None) -> LearnResult:
-    """:func:`slearn.learn.learn_files` on Ray: ``workers`` CPUs here, or the cluster at
-    ``address`` (see the module docstring for what equals one process).
+class RayReader:
+    """:func:`slearn.serialize.read_episodes` with each log read by a Ray task.
 
-    ``echo`` receives a progress line per log learned (logs done / total, events/s).
+    Same arguments, same yields, same vocabulary afterwards; ``echo`` receives a
+    progress line per log (logs done / total, events/s).
+    """
+
+    def __init__(self, ray, echo: Callable[[str], None] | None = None, what: str = "read") -> None:
+        self.ray, self.echo, self.what = ray, echo, what
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.in_flight = max(IN_FLIGHT_PER_CPU * cpus, 2)
+
+    def __call__(self, paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Vocabulary,
+                 progress: bool = False, window: TimeSlice | dict[str, TimeSlice] | None = None
+                 ) -> Iterator[tuple[str, Episode, ReadReport]]:
+        paths = [os.fspath(p) for p in paths]
+        task = self.ray.remote(max_retries=MAX_RETRIES)(read_log)
+        prepare_vocabulary(spec, vocabulary)
+        data, rate, shown = spec.to_dict(), Rate(self.what, len(paths), self.echo), set()
+        pending: deque = deque()
+        todo = iter(paths)
+        for _ in range(self.in_flight):
+            _submit(task, todo, pending, data, spec.source, window)
+        while pending:
+            path, ref = pending.popleft()
+            log = gather(self.ray, [ref], [path])[0]
+            _submit(task, todo, pending, data, spec.source, window)
+            yield from _episodes(log, path, spec, vocabulary)
+            rate.add(log["events"])
+            _warn_once(log["warnings"], shown)
+
+
+def _submit(task, todo: Iterator[str], pending: deque, spec: dict, source: str,
+            window: TimeSlice | dict[str, TimeSlice] | None) -> None:
+    path = next(todo, None)
+    if path is not None:
+        log_window = window.get(path) if isinstance(window, dict) else window
+        pending.append((path, task.remote(path, spec, source,
+                                          log_window.to_dict() if log_window else None)))
+
+
+def _episodes(log: dict, path: str, spec: Spec, vocabulary: Vocabulary
+              ) -> Iterator[tuple[str, Episode, ReadReport]]:
+    mapping = renumber(log["vocabulary"], vocabulary, spec, path)
+    report = ReadReport(**log["report"])
+    for i, (name, symbols, offsets, n_actions) in enumerate(log["episodes"]):
+        last = i == len(log["episodes"]) - 1
+        if last and report.truncated:
+            warnings.warn(TruncatedLogWarning(report.describe()), stacklevel=3)
+        yield name, Episode(mapping[symbols], offsets, n_actions), report if last else ReadReport(path)
+
+
+def renumber(names: list[tuple[str, object]], vocabulary: Vocabulary, spec: Spec,
+             path: str) -> np.ndarray:
+    """The run's symbol of each of a task's symbols, registering the new values in order.
 
     Raises:
-        InputError: as :func:`~slearn.learn.learn_files`; ``max_patterns`` or the literal
-            scoring (refused); Ray missing; a log a worker cannot see.
-        ClusterError: the cluster cannot be reached, or a worker died too often.
+        SpecError: a channel gets more distinct values than its entry allows.
     """
-    start = time.perf_counter()
-    paths = [os.fspath(p) for p in paths]
-    if not paths:
-        raise InputError("no logs to learn from")
-    check_output(output, overwrite, inputs=paths + ([os.fspath(resume)] if resume else []))
-    _check_scoring(scoring)
-    _refuse_order_dependent(scoring, max_patterns)
-    source_date_epoch()
-    job = (_resumed_job(os.fspath(resume), spec, max_length, None, scoring) if resume
-           else _new_job(paths, spec, max_length, None, scoring, progress, window))
-    _refuse_order_dependent(job.params.get("scoring"), job.library.max_patterns)
-    for message in job.spec.warnings():
-        warnings.warn(DataWarning(message), stacklevel=2)
-    result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
-    first = Path(resume).read_bytes() if resume else None
-    with ray_session(workers, address) as ray:
-        stats, merged = _learn_tasks(ray, paths, job.spec, job.library.max_length, window, first,
-                                     Rate("learned", len(paths), echo))
-    _add_stats(result, stats)
-    if not result.n_steps and result.truncated:
-        raise InputError(f"nothing could be salvaged, so nothing was written: "
-                         f"{result.truncated[0].describe()}")
-    library, vocabulary = _final(merged, job)
-    saved = save_library(output, library, vocabulary, spec=job.spec, params=job.params,
-                         provenance=build_provenance(paths, job.provenance, window,
-                                                     [s["record"] for s in stats]),
-                         overwrite=overwrite)
-    result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
-    result.clock, result.forgotten = library.clock, library.forgotten
-    result.n_symbols, result.seconds = len(vocabulary), time.perf_counter() - start
-    return result
+    known = len(vocabulary)
+    per_channel = Counter(channel for _, channel, _ in vocabulary.items())
+    limits = {c.name: c.symbol_limit for c in spec.channels}
+    mapping = np.empty(len(names), np.int32)
+    for i, (channel, value) in enumerate(names):
+        mapping[i] = vocabulary.symbol(channel, value)
+        if mapping[i] >= known:
+            known += 1
+            per_channel[channel] += 1
+            if per_channel[channel] > limits.get(channel, per_channel[channel]):
+                raise SpecError(f"{path}: channel {channel!r} has more than {limits[channel]:,} "
+                                f"distinct values: use coarser bins, or raise the entry's max_symbols")
+    return mapping
 
 
-def _refuse_order_dependent(scoring: str | None, max_patterns: int | None) -> None:
-    if scoring == "literal":
-        raise InputError("--scoring literal cannot be learned on Ray: its parse depends on the whole "
-                         "run; learn it in one process (leave out --workers/--ray)")
-    if max_patterns is not None:
-        raise InputError("--max-patterns cannot be learned on Ray: one process forgets along the way, "
-                         "a merge only at the end, so the library would differ; leave it out, or "
-                         "learn in one process")
+def _warn_once(messages: list[str], shown: set) -> None:
+    for message in messages:
+        if message not in shown:
+            shown.add(message)
+            warnings.warn(DataWarning(message), stacklevel=4)
 
 
-def _learn_tasks(ray, paths: list[str], spec: Spec, max_length: int, window: TimeSlice | None,
-                 first: bytes | None, rate: Rate) -> tuple[list[dict], bytes | None]:
-    """Per log its stats, and the bytes of the merged library (``None``: nothing learned)."""
-    learn = ray.remote(num_returns=2, max_retries=MAX_RETRIES)(learn_log)
-    merge = ray.remote(max_retries=MAX_RETRIES)(merge_pair)
-    spec_data, window_data = spec.to_dict(), window.to_dict() if window else None
-    tasks = [learn.remote(path, spec_data, spec.source, max_length, window_data) for path in paths]
-    leaves = ([ray.put(first)] if first is not None else []) + [partial for _, partial in tasks]
-    root = merge_tree(merge, leaves)
-    stats = gather(ray, [s for s, _ in tasks], paths, lambda i, s: rate.add(s["events"]))
-    return stats, gather(ray, [root], ["merging the partial libraries"])[0]
-
-
-def merge_tree(merge, leaves: list):
-    """The root of a balanced tree of ``merge.remote(a, b)`` over ``leaves``, in order."""
-    while len(leaves) > 1:
-        pairs = [merge.remote(leaves[i], leaves[i + 1]) for i in range(0, len(leaves) - 1, 2)]
-        leaves = pairs + (leaves[-1:] if len(leaves) % 2 else [])
-    return leaves[0]
-
-
-def learn_log(path: str, spec: dict, source: str, max_length: int,
-              window: dict | None) -> tuple[dict, bytes | None]:
-    """The task: one log learned from empty. Returns its stats (``record`` for the
-    provenance, ``truncated`` read report, ``warnings``) and its library file's bytes
-    (``None`` when it has no step)."""
+def read_log(path: str, spec: dict, source: str, window: dict | None) -> dict:
+    """The task: one log read with a vocabulary of its own, as plain data: ``episodes``
+    (name, symbols, step offsets, actions per step), ``vocabulary`` (``(channel, value)``
+    per symbol), ``report`` (the read report's fields), ``warnings``, ``events``."""
     check_visible(path)
-    spec_object = Spec.from_dict(spec, source)
     vocabulary = Vocabulary()
-    library = PatternLibrary(max_length, None, vocabulary=vocabulary)
-    stats = {"path": path, "episodes": 0, "steps": 0, "events": 0, "truncated": None}
+    episodes, report = [], ReadReport(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for _, episode, report in read_episodes([path], spec_object, vocabulary, False,
-                                                slice_from_dict(window)):
-            library.learn(episode)
-            stats["episodes"] += 1
-            stats["steps"] += len(episode)
-            stats["events"] += episode.n_events
-            if report.truncated:
-                stats["truncated"] = dataclasses.asdict(report)
-    stats["warnings"] = [str(w.message) for w in caught if issubclass(w.category, DataWarning)]
-    stats["record"] = log_record(path)
-    if not stats["steps"]:
-        return stats, None
-    return stats, library_bytes(lambda out: save_library(
-        out, library, vocabulary, spec=spec_object, params={"scoring": "adaptive"},
-        provenance=_PARTIAL))
-
-
-def merge_pair(a: bytes | None, b: bytes | None) -> bytes | None:
-    """The task: the library of ``a``'s episodes, then ``b``'s (file bytes; ``None`` is empty)."""
-    if a is None or b is None:
-        return a if b is None else b
-    return loaded_bytes(merge_libraries(library_from_bytes(a), library_from_bytes(b)))
-
-
-def _add_stats(result: LearnResult, stats: list[dict]) -> None:
-    seen = set()
-    for s in stats:
-        result.n_episodes += s["episodes"]
-        result.n_steps += s["steps"]
-        result.n_events += s["events"]
-        if s["truncated"] is not None:
-            result.truncated.append(ReadReport(**s["truncated"]))
-        for message in s["warnings"]:
-            if message not in seen:
-                seen.add(message)
-                warnings.warn(DataWarning(message), stacklevel=3)
-
-
-def _final(merged: bytes | None, job) -> tuple:
-    """The library and vocabulary to save: the merged one, or the job's empty one."""
-    if merged is None:
-        prepare_vocabulary(job.spec, job.vocabulary)
-        return job.library, job.vocabulary
-    loaded = library_from_bytes(merged)
-    return loaded.library, loaded.vocabulary
+        for name, episode, report in read_episodes([path], Spec.from_dict(spec, source), vocabulary,
+                                                   False, slice_from_dict(window)):
+            episodes.append((name, episode.symbols, episode.step_offsets, episode.n_actions))
+    return {"episodes": episodes, "vocabulary": [(c, v) for _, c, v in vocabulary.items()],
+            "report": dataclasses.asdict(report), "events": sum(len(e[1]) for e in episodes),
+            "warnings": [str(w.message) for w in caught if issubclass(w.category, DataWarning)]}

@@ -182,7 +182,7 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
                 max_length: int | None = None, max_patterns: int | None = None,
                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
                 on_episode: Callable[[LearnResult, str], None] | None = None,
-                window: TimeSlice | None = None) -> LearnResult:
+                window: TimeSlice | None = None, reader: Callable = read_episodes) -> LearnResult:
     """Learn the episodes of each log and save the library to ``output`` (atomically).
 
     Args:
@@ -200,6 +200,8 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
         on_episode: called after each episode is learned with the running result
             (episodes, steps, events so far) and the episode's name.
         window: learn only this slice of each log's time (recorded in the provenance).
+        reader: reads the logs into episodes, as :func:`~slearn.serialize.read_episodes`
+            (:class:`slearn.distributed.RayReader` reads them on Ray).
 
     Warnings (:class:`~slearn.errors.DataWarning`): a spec without an action channel,
     values outside an entry's ``range``.
@@ -227,7 +229,7 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     for message in job.spec.warnings():
         warnings.warn(DataWarning(message), stacklevel=2)
     result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
-    _learn_episodes(job, paths, result, progress, on_episode, window)
+    _learn_episodes(job, paths, result, progress, on_episode, window, reader)
     if not result.n_steps and result.truncated:
         raise InputError(f"nothing could be salvaged, so nothing was written: "
                          f"{result.truncated[0].describe()}")
@@ -242,8 +244,8 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
 
 def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
-                    window: TimeSlice | None) -> None:
-    for path, episode, report in read_episodes(paths, job.spec, job.vocabulary, progress, window):
+                    window: TimeSlice | None, reader: Callable = read_episodes) -> None:
+    for path, episode, report in reader(paths, job.spec, job.vocabulary, progress, window):
         job.library.learn(episode)
         result.n_episodes += 1
         result.n_steps += len(episode)

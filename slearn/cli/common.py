@@ -91,3 +91,19 @@ def ray_options(func: Callable) -> Callable:
 def echo_progress(line: str) -> None:
     """A progress line on stderr."""
     click.echo(line, err=True)
+
+
+@contextlib.contextmanager
+def reader_for(workers: int | None, address: str | None, what: str | None) -> Iterator[Callable]:
+    """The log reader of a job: on Ray with --workers/--ray (progress lines ``what`` k/n
+    logs when ``what`` is given), else the one-process reader."""
+    from slearn.serialize import read_episodes
+
+    if workers is None and address is None:
+        yield read_episodes
+        return
+    from slearn.cluster import ray_session
+    from slearn.distributed import RayReader
+
+    with ray_session(workers, address) as ray:
+        yield RayReader(ray, echo_progress if what else None, what or "read")

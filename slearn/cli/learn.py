@@ -9,7 +9,7 @@ import warnings
 import click
 
 from slearn.cli import EXIT_TRUNCATED
-from slearn.cli.common import (CHANNEL_HELP, echo_progress, make_slice, ray_options, slice_options,
+from slearn.cli.common import (CHANNEL_HELP, echo_progress, make_slice, ray_options, reader_for, slice_options,
                                topic_list, warnings_on_stderr)
 from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
@@ -76,6 +76,10 @@ def _progress(total: int):
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
 @slice_options(split=True)
 @ray_options
+@click.option("--merge-tree", is_flag=True,
+              help="With --workers/--ray: learn each log in its own task and merge the partial "
+                   "libraries (scales past one core's learning rate; patterns, counts and recency "
+                   "as one process, the scoring weights by the merge rule).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
 @click.pass_context
@@ -84,13 +88,13 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
             phase_ms: float | None, max_length: int | None, max_patterns: int | None, scoring: str | None,
             resume: str | None, force: bool, start: str | None, end: str | None,
             topics: str | None, split: float | None, workers: int | None, ray_address: str | None,
-            quiet: bool, as_json: bool) -> None:
+            merge_tree: bool, quiet: bool, as_json: bool) -> None:
     """Learn a pattern library from LOGS: MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files.
 
     Each log is an episode (or several, when it marks episode boundaries). Exits 3 when a
     log was truncated: what could be read is learned and saved. With --workers or --ray,
-    each log is learned by a Ray task and the partial libraries are merged: the same
-    patterns, counts and recency as one process; the scoring weights follow the merge rule.
+    Ray tasks read the logs (every node must see them at the same path) and this process
+    learns them in order: the same library, byte for byte, as without.
     """
     spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
     refuse_inputs(output, [spec_path] if spec_path else [])
@@ -103,19 +107,22 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings(), warnings_on_stderr():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
-        if workers is not None or ray_address is not None:
-            from slearn.distributed import learn_on_ray
+        if merge_tree:
+            from slearn.merge_tree import learn_on_ray
 
+            if workers is None and ray_address is None:
+                raise click.UsageError("--merge-tree runs on Ray: give --workers N or --ray ADDRESS")
             result = learn_on_ray(paths, output, workers=workers, address=ray_address, spec=spec,
                                   resume=resume, max_length=max_length, max_patterns=max_patterns,
                                   scoring=scoring, overwrite=force, progress=progress,
                                   echo=echo_progress if progress else None, window=window)
         else:
-            result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
-                                 max_patterns=max_patterns, scoring=scoring, overwrite=force,
-                                 progress=progress,
-                                 on_episode=_progress(len(paths)) if progress else None,
-                                 window=window)
+            with reader_for(workers, ray_address, "learned" if progress else None) as reader:
+                result = learn_files(paths, output, spec=spec, resume=resume, max_length=max_length,
+                                     max_patterns=max_patterns, scoring=scoring, overwrite=force,
+                                     progress=progress, window=window, reader=reader,
+                                     on_episode=_progress(len(paths)) if progress and
+                                     workers is None and ray_address is None else None)
     click.echo(json.dumps(result.to_dict()) if as_json else _summary(result))
     for report in result.truncated:
         click.echo(f"slearn: warning: {report.describe()}", err=True)
