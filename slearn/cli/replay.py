@@ -10,7 +10,7 @@ import click
 
 from slearn.bags import is_log_path
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
-from slearn.cli.common import make_slice, slice_options, topic_list
+from slearn.cli.common import make_slice, ray_options, reader_for, slice_options, topic_list
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
 from slearn.files import check_output
@@ -63,13 +63,15 @@ def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
 @click.option("--fail-under", type=FiniteFloat(0, 100),
               help="Exit 4 when the accuracy (percent) is below this.")
 @slice_options(split=True)
+@ray_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str | None,
             window: int | None, top_k: int, max_length: int,
             baseline_train: tuple[str, ...], as_json: bool, plot: str | None, report: str | None,
             write_mcap: str | None, force: bool, fail_under: float | None, start: str | None,
-            end: str | None, topics: str | None, split: float | None, quiet: bool) -> None:
+            end: str | None, topics: str | None, split: float | None, workers: int | None,
+            ray_address: str | None, quiet: bool) -> None:
     """Evaluate library LIB on held-out LOGS: slearn replay LIB LOGS...
 
     LOGS are MCAP files, rosbag2 folders, .db3 or ROS 1 .bag files. Frozen by default: the
@@ -78,7 +80,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     online. With --split, each log's held-out part (after the share learn --split read) is
     replayed. Every accuracy comes with a 95 % interval, next to the frequency, Markov and
     persistence baselines. Exits 3 when a log was truncated (what was salvaged is scored),
-    4 when the accuracy is below --fail-under.
+    4 when the accuracy is below --fail-under. With --workers or --ray, Ray tasks read
+    the logs and this process scores them in order: the same report as without.
     """
     from slearn.replay.evaluate import replay_logs
 
@@ -90,11 +93,12 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
 
         targets = annotated_paths(logs, write_mcap)
         _check_outputs([str(p) for t in targets for p in (t, layout_path(t))], force, inputs)
-    evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics), online=online,
-                             top_k=top_k, window=window, max_length=max_length,
-                             baseline_logs=baseline_train or None,
-                             keep_outcomes=write_mcap is not None, progress=not quiet,
-                             time_slice=make_slice(start, end, split, HELDOUT))
+    with reader_for(workers, ray_address, None if quiet else "read") as reader:
+        evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics),
+                                 online=online, top_k=top_k, window=window, max_length=max_length,
+                                 baseline_logs=baseline_train or None,
+                                 keep_outcomes=write_mcap is not None, progress=not quiet,
+                                 time_slice=make_slice(start, end, split, HELDOUT), reader=reader)
     outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
     _render(evaluation, outputs, as_json)
     for warning in evaluation.warnings:
