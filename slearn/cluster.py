@@ -35,6 +35,7 @@ MAX_RETRIES = 3
 """Times Ray runs a task again after its worker process died."""
 
 _WAIT_S = 1.0  # longest wait between progress lines
+_CONNECT_S = 10.0
 
 
 class ClusterError(SlearnError):
@@ -70,6 +71,8 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
         yield ray
         return
     options = dict(include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    if address is not None:
+        _check_reachable(address)
     try:
         if address is not None:
             ray.init(address=address, **options)
@@ -83,6 +86,18 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
         yield ray
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """Refuse a ``host:port`` nobody listens on at once (Ray itself retries for minutes)."""
+    host, _, port = address.rpartition(":")
+    if "://" in address or not host or not port.isdigit():
+        return  # "auto", "ray://...": Ray's own lookup
+    try:
+        socket.create_connection((host, int(port)), timeout=_CONNECT_S).close()
+    except OSError as err:
+        raise ClusterError(f"cannot join the Ray cluster at {address}: {err.strerror or err} "
+                           f"(start one with `ray start --head`, and give its address)") from None
 
 
 def check_visible(path: str) -> None:
