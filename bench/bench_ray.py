@@ -1,0 +1,157 @@
+"""Learning many logs on Ray: speed-up against one process, measured in the same run.
+
+Issue 13 asks ``--workers 2`` to learn 16 logs of 10^5 pointer trials >= 1.7x faster
+than one process on this 2-core machine, with the per-log cost, the merge cost and Ray's
+start-up reported, and a scaling model written from the measured costs.
+
+Measured here, on the same logs (pointer, ``--condition``, one seed per log):
+
+* one process: ``learn_files`` (reading and learning; the reading share is timed apart);
+* ``--workers N``: Ray start-up, then ``learn_files`` with :class:`slearn.distributed.RayReader`
+  (logs read in tasks, learned in order by this process): the file must be byte-identical;
+* ``--workers N --merge-tree``: each log learned in a task, partials merged in a tree; a
+  merge of two libraries of the final size is timed on its own, and the merged library's
+  frozen accuracy
+  on held-out logs is compared with one process's (the scoring state follows the merge
+  rule, so it may differ).
+
+The scaling model extrapolates from these costs (per event: reading, learning; per
+merge: its seconds per pattern) to 10^4 logs of 10^6 events on 100 nodes of 16 cores.
+
+Run: ``python bench/bench_ray.py [--logs 16] [--trials 100000] [--workers 2] [--json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from slearn.cluster import ray_session
+from slearn.distributed import RayReader
+from slearn.learn import learn_files
+from slearn.merge import merge_libraries
+from slearn.merge_tree import learn_on_ray
+from slearn.recorders.pointer import PointerConfig
+from slearn.recorders.record_pointer import record_pointer
+from slearn.replay.evaluate import replay_logs
+from slearn.serialize import read_episodes
+from slearn.spec import pointer_spec
+from slearn.storage import load_library
+from slearn.vocabulary import Vocabulary
+
+
+def _timed(function, *args, **kwargs):
+    started = time.perf_counter()
+    out = function(*args, **kwargs)
+    return out, time.perf_counter() - started
+
+
+def _record(folder: Path, n: int, trials: int, condition: str, first_seed: int) -> list[str]:
+    return [str(record_pointer(PointerConfig(condition=condition, trials=trials, seed=first_seed + i),
+                               folder / f"log{first_seed + i:03d}.mcap").path) for i in range(n)]
+
+
+def _read_seconds(paths: list[str]) -> float:
+    started = time.perf_counter()
+    for _ in read_episodes(paths, pointer_spec(), Vocabulary()):
+        pass
+    return time.perf_counter() - started
+
+
+def _merge_cost(library: Path) -> tuple[float, int]:
+    """Seconds to merge the one-process library with a copy of itself (the tree's top
+    merge joins two libraries of about the final size), and the patterns merged."""
+    a, b = load_library(library), load_library(library)
+    merged, seconds = _timed(merge_libraries, a, b)
+    return seconds, len(merged.library)
+
+
+def _accuracy(library: Path, held_out: list[str]) -> float:
+    return replay_logs(held_out, library=library).accuracy
+
+
+def measure(args) -> dict:
+    folder = Path(tempfile.mkdtemp(prefix="slearn-bench-ray-"))
+    logs, record_s = _timed(_record, folder, args.logs, args.trials, args.condition, 0)
+    held_out = _record(folder, 2, max(args.trials // 10, 100), args.condition, 1000)
+    warm = _record(folder, 1, 200, args.condition, 2000)
+    learn_files(warm, folder / "warm.parquet")  # compile (or load) the kernels first
+    read_s = _read_seconds(logs)
+    _, one_s = _timed(learn_files, logs, folder / "one.parquet")
+    session = ray_session(workers=args.workers)
+    ray, start_s = _timed(session.__enter__)
+    try:
+        learn_files(warm, folder / "warm-ray.parquet", reader=RayReader(ray))  # workers import slearn
+        _, ray_s = _timed(learn_files, logs, folder / "ray.parquet", reader=RayReader(ray))
+        _, tree_s = _timed(learn_on_ray, logs, folder / "tree.parquet", workers=args.workers)
+    finally:
+        session.__exit__(None, None, None)
+    merge_s, merged_patterns = _merge_cost(folder / "one.parquet")
+    events = 2 * args.trials * args.logs
+    return {"logs": args.logs, "trials_per_log": args.trials, "events": events, "workers": args.workers,
+            "record_s": record_s, "one_process_s": one_s, "read_s": read_s,
+            "per_log_s": one_s / args.logs, "ray_start_s": start_s, "ray_s": ray_s, "tree_s": tree_s,
+            "speedup": one_s / ray_s, "speedup_with_start": one_s / (ray_s + start_s),
+            "tree_speedup": one_s / tree_s,
+            "identical": (folder / "ray.parquet").read_bytes() == (folder / "one.parquet").read_bytes(),
+            "merge_halves_s": merge_s, "merged_patterns": merged_patterns,
+            "accuracy_one": _accuracy(folder / "one.parquet", held_out),
+            "accuracy_tree": _accuracy(folder / "tree.parquet", held_out),
+            "read_s_per_event": read_s / events, "learn_s_per_event": max(one_s - read_s, 0) / events,
+            "merge_s_per_pattern": merge_s / max(merged_patterns, 1), "folder": str(folder)}
+
+
+def scaling_model(m: dict, logs: int = 10_000, events_per_log: int = 1_000_000,
+                  nodes: int = 100, cores: int = 16) -> dict:
+    """Seconds for ``logs`` logs on ``nodes`` x ``cores``, from the measured costs."""
+    events, cpus = logs * events_per_log, nodes * cores
+    read, learn = m["read_s_per_event"] * events, m["learn_s_per_event"] * events
+    one = read + learn
+    exact = max(read / cpus, learn)  # tasks read in parallel; the driver learns every event
+    depth = (logs - 1).bit_length()
+    # Each tree level merges libraries of (at most) the final size; levels run in parallel.
+    merge = depth * m["merge_s_per_pattern"] * m["merged_patterns"]
+    tree = (read + learn) / cpus + merge
+    return {"logs": logs, "events": events, "cpus": cpus, "one_process_s": one, "exact_s": exact,
+            "exact_bound": "the driver's learning" if learn > read / cpus else "reading",
+            "tree_s": tree, "tree_depth": depth, "tree_merge_s": merge}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--logs", type=int, default=16)
+    parser.add_argument("--trials", type=int, default=100_000)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--condition", default="error")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    os.environ.setdefault("SOURCE_DATE_EPOCH", "0")
+    m = measure(args)
+    model = scaling_model(m)
+    if args.json:
+        print(json.dumps({"measured": m, "model": model}, indent=2))
+        return
+    print(f"{m['logs']} logs x {m['trials_per_log']:,} trials ({m['events']:,} events), "
+          f"{m['workers']} workers")
+    print(f"one process        {m['one_process_s']:7.2f} s  ({m['per_log_s']:.2f} s per log; "
+          f"reading {m['read_s']:.2f} s of it)")
+    print(f"Ray start-up       {m['ray_start_s']:7.2f} s")
+    print(f"--workers          {m['ray_s']:7.2f} s  speed-up {m['speedup']:.2f}x "
+          f"({m['speedup_with_start']:.2f}x with start-up); byte-identical: {m['identical']}")
+    print(f"--merge-tree       {m['tree_s']:7.2f} s  speed-up {m['tree_speedup']:.2f}x")
+    print(f"held-out accuracy  one process {100 * m['accuracy_one']:.3f} %, merge tree "
+          f"{100 * m['accuracy_tree']:.3f} % ({100 * (m['accuracy_tree'] - m['accuracy_one']):+.3f} points)")
+    print(f"merge cost         {m['merge_halves_s']:7.2f} s to merge two libraries of "
+          f"{m['merged_patterns']:,} patterns")
+    print(f"model: {model['logs']:,} logs x 10^6 events on {model['cpus']:,} cores: one process "
+          f"{model['one_process_s'] / 3600:,.1f} h; --workers {model['exact_s'] / 3600:,.2f} h "
+          f"(bound by {model['exact_bound']}); --merge-tree {model['tree_s'] / 60:,.1f} min "
+          f"(tree depth {model['tree_depth']}, merging {model['tree_merge_s']:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()
