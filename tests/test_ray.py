@@ -22,6 +22,7 @@ from slearn.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
+from slearn.slicing import time_slice
 from slearn.spec import pointer_spec
 from slearn.storage import load_library
 from slearn.vocabulary import Vocabulary
@@ -77,9 +78,14 @@ def test_learn_cli_with_workers_writes_the_bytes_of_one_process(local_ray, logs,
 
 
 def test_arm_logs_learned_on_ray_are_the_bytes_of_one_process(local_ray, logs, tmp_path):
-    learn_files(logs["arm"], tmp_path / "one.parquet", spec=arm_spec(3))
-    learn_files(logs["arm"], tmp_path / "many.parquet", spec=arm_spec(3), reader=RayReader(local_ray))
+    window = time_slice(split=0.6)
+    learn_files(logs["arm"], tmp_path / "one.parquet", spec=arm_spec(3), window=window)
+    lines = []
+    learn_files(logs["arm"], tmp_path / "many.parquet", spec=arm_spec(3), window=window,
+                reader=RayReader(local_ray, lines.append, "learned"))
     assert (tmp_path / "many.parquet").read_bytes() == (tmp_path / "one.parquet").read_bytes()
+    assert [line.split(":")[0] for line in lines] == [f"learned {i}/3 logs" for i in (1, 2, 3)]
+    assert lines[-1].endswith("events/s") and "0 events," not in lines[-1]
 
 
 def _report(result) -> dict:
