@@ -2,7 +2,6 @@
 
 import hashlib
 import json
-import time
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,6 @@ from slearn.spec import load_spec, pointer_spec
 
 PR2_LOG = (Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")
-BUILD_SECONDS = 20  # "builds in seconds", with room for a slow CI machine
 
 
 def _invoke(*args):
@@ -29,19 +27,15 @@ def _invoke(*args):
 @pytest.fixture(scope="module")
 def pointer_paper(tmp_path_factory):
     folder = tmp_path_factory.mktemp("pointer-paper")
-    start = time.perf_counter()
     result = _invoke("datasets", "build", "pointer-paper", "-o", folder, "--json")
     assert result.exit_code == 0, result.output
-    assert time.perf_counter() - start < BUILD_SECONDS
     return folder, json.loads(result.stdout)
 
 
 @pytest.fixture(scope="module")
 def pointer_arm(tmp_path_factory):
     folder = tmp_path_factory.mktemp("pointer-arm")
-    start = time.perf_counter()
     summary = build_dataset("pointer-arm", folder)
-    assert time.perf_counter() - start < BUILD_SECONDS
     return folder, summary
 
 
