@@ -30,7 +30,6 @@ from typing import Callable
 
 from slearn import __version__
 from slearn.bags import open_log
-from slearn.datasets.figures import arm_figures, log_figures, pointer_figures
 from slearn.errors import InputError, SpecError
 from slearn.files import claim_folder, release_folder, write_atomic
 from slearn.recorders.arm import MAX_JOINTS, ArmConfig, arm_spec, record_arm
@@ -232,7 +231,7 @@ def _build_pointer_paper(root: Path, summary: BuildSummary, source: Path | None)
             episodes.append(EpisodeFile(str(path), split, condition, seed, POINTER_TRIALS))
     summary.episodes += episodes
     spec = _write_spec(root / SPEC_FILE, _package_text("pointer-paper.toml"), summary)
-    figures = pointer_figures(CONDITIONS, TRAIN_SEEDS, HELDOUT_SEEDS[0], POINTER_TRIALS)
+    figures = _figures().pointer_figures(CONDITIONS, TRAIN_SEEDS, HELDOUT_SEEDS[0], POINTER_TRIALS)
     _write_card(root / CARD_FILE, "pointer-paper.md", summary, spec=spec.strip(),
                 files=_files_table(episodes, root), trials=f"{POINTER_TRIALS:,}",
                 train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS),
@@ -264,7 +263,15 @@ def _build_pointer_arm(root: Path, summary: BuildSummary, source: Path | None) -
     _write_card(root / CARD_FILE, "pointer-arm.md", summary, files="\n\n".join(tables),
                 spec=spec_toml(arm_spec(2)).strip(), trials=f"{ARM_TRIALS:,}",
                 train_seeds=_listing(TRAIN_SEEDS), heldout_seeds=_listing(HELDOUT_SEEDS),
-                figures=arm_figures(MAX_JOINTS, TRAIN_SEEDS, HELDOUT_SEEDS[0], ARM_TRIALS))
+                figures=_figures().arm_figures(MAX_JOINTS, TRAIN_SEEDS, HELDOUT_SEEDS[0], ARM_TRIALS))
+
+
+def _figures():
+    """The figures module, imported when a dataset is built: it learns, so it compiles
+    kernels, and ``slearn datasets list`` must not pay for that."""
+    from slearn.datasets import figures
+
+    return figures
 
 
 # --- pr2-sample ------------------------------------------------------------------------------
@@ -311,7 +318,7 @@ def _add_source(source: Path, folders: dict[str, Path], root: Path,
     found = (f"Built with `--source {source.name}`, split by time: the first "
              f"{100 * SOURCE_SPLIT:.0f} % of its time went to `train/{targets[TRAIN].name}` "
              f"({counts[TRAIN]}), the rest to `heldout/{targets[HELDOUT].name}` ({counts[HELDOUT]}).")
-    return found, log_figures(targets[TRAIN], targets[HELDOUT], root / SPEC_FILE)
+    return found, _figures().log_figures(targets[TRAIN], targets[HELDOUT], root / SPEC_FILE)
 
 
 def _check_fits(source: Path, path: Path, spec, folders: dict[str, Path]) -> str:

@@ -13,7 +13,8 @@ of the sources of every module that holds kernels, so that a change in any of th
 callee in another module included) compiles everything once again; numba alone checks a
 kernel against its own file only. The folder is set while slearn's kernels are decorated
 and restored after, so other libraries' kernels in the same process keep their own
-cache. Folders of older fingerprints are removed. ``NUMBA_CACHE_DIR`` moves slearn's
+cache. Folders of other fingerprints unused for a week, or beyond the eight most recently
+used, are removed (checkouts of several branches share the base). ``NUMBA_CACHE_DIR`` moves slearn's
 folder under it; ``SLEARN_CACHE_DIR`` sets it outright.
 """
 
@@ -22,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -29,7 +31,10 @@ import numba
 
 _MARKER = b"from slearn._jit import"
 _PACKAGES = ("slearn", "slearn.replay", "slearn.recorders")
-KEEP_FOLDERS = 2  # the current fingerprint and the one before it (switching branches)
+# Several checkouts (branches, worktrees, virtualenvs) share the cache base, each with its
+# own fingerprint: a folder goes when unused for a week, or beyond the most recently used.
+KEEP_FOLDERS = 8
+STALE_S = 7 * 24 * 3600
 
 
 def kernel(function):
@@ -97,12 +102,15 @@ def source_fingerprint() -> str:
     return digest.hexdigest()[:16]
 
 
-def prune(base: Path, current: Path) -> None:
-    """Remove fingerprint folders but the newest ``KEEP_FOLDERS`` (the current one kept)."""
+def prune(base: Path, current: Path, now: float | None = None) -> None:
+    """Remove fingerprint folders unused for ``STALE_S`` seconds or beyond the
+    ``KEEP_FOLDERS`` most recently used (the current one counted and kept)."""
+    now = time.time() if now is None else now
     try:
         folders = [p for p in base.iterdir() if p.is_dir() and p != current and len(p.name) == 16]
         folders.sort(key=lambda p: p.stat().st_mtime, reverse=True)
-        for stale in folders[KEEP_FOLDERS - 1:]:
-            shutil.rmtree(stale, ignore_errors=True)
+        for rank, folder in enumerate(folders, start=1):
+            if rank >= KEEP_FOLDERS or now - folder.stat().st_mtime > STALE_S:
+                shutil.rmtree(folder, ignore_errors=True)
     except OSError:
         pass  # a read-only or vanished cache is not an error: numba recompiles

@@ -20,12 +20,42 @@ from slearn.errors import SlearnError
 EXIT_TRUNCATED = 3
 EXIT_BELOW_THRESHOLD = 4
 
-# Subcommand modules; each defines one click command (or group) named ``command``.
-_COMMAND_MODULES = ("demo", "record", "info", "learn", "merge", "replay", "control", "datasets")
+# Subcommand modules (each defines one click command or group named ``command``), imported
+# only when called: most pull in numba and the kernels, and ``--help`` or ``info`` need
+# neither. The summaries ``--help`` lists are kept here so that listing imports nothing;
+# a test checks them against each command's own help.
+_COMMANDS = {
+    "control": "Steer the simulated pointer to random goals in closed loop, learning as it goes.",
+    "datasets": "Named, reproducible datasets (MCAP episodes, a card and a spec each).",
+    "demo": "Record the pointer's six conditions, learn them online, and print Figure 2.",
+    "info": "Show the header, time span, channels, rates and every field of logs (MCAP files, "
+            "rosbag2 folders, .db3 and ROS 1 .bag files), or a pattern library (.parquet).",
+    "learn": "Learn a pattern library from LOGS: MCAP files, rosbag2 folders, .db3 or ROS 1 "
+             ".bag files.",
+    "merge": "Merge LIBRARIES (two or more .parquet files): counts add, recency is the newest.",
+    "record": "Record episodes into MCAP files.",
+    "replay": "Evaluate library LIB on held-out LOGS: slearn replay LIB LOGS...",
+}
 
 
 class _Group(click.Group):
-    """Turns slearn's own errors into a one-line message and an exit code."""
+    """Imports a subcommand when it is called; turns slearn's own errors into a one-line
+    message and an exit code."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(_COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in _COMMANDS:
+            return None
+        return importlib.import_module(f"slearn.cli.{name}").command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        limit = formatter.width - 6 - max(len(name) for name in _COMMANDS)
+        rows = [(name, click.Command(name, help=_COMMANDS[name]).get_short_help_str(limit))
+                for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context):
         try:
@@ -53,11 +83,3 @@ def main() -> None:
                            256, 1 to 1048576); a larger chunk is skipped with a warning (exit 3)
       SOURCE_DATE_EPOCH    the time recorded in a library's provenance (0 to 253402300799)
     """
-
-
-def _register() -> None:
-    for name in _COMMAND_MODULES:
-        main.add_command(importlib.import_module(f"slearn.cli.{name}").command)
-
-
-_register()

@@ -1,0 +1,113 @@
+"""slearn's kernel cache: its own folder, named after every kernel module's sources, set only
+while slearn decorates, and pruned."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from slearn import _jit
+
+# A kernel in one module calling a helper in another, and another library's cached kernel
+# decorated after them. The fingerprint is taken over the files of this small package.
+_HELPER = "from slearn._jit import helper\n\n@helper\ndef bump(x):\n    return x + {step}\n"
+_KERNEL = textwrap.dedent("""
+    from slearn._jit import kernel
+    from pkgx.a import bump
+
+    @kernel
+    def total(values):
+        s = 0
+        for v in values:
+            s += bump(v)
+        return s
+""")
+_OTHER = "import numba\n\n@numba.njit(cache=True)\ndef other(x):\n    return x * 2\n"
+_CHILD = textwrap.dedent("""
+    import json, sys
+    from pathlib import Path
+    import numba, numpy as np
+    sys.path.insert(0, sys.argv[1])
+    import slearn._jit as jit
+    covered = sys.argv[2].split(",")
+    jit.kernel_sources = lambda: [Path(sys.argv[1], "pkgx", name) for name in covered]
+    before = numba.config.CACHE_DIR
+    from pkgx import b
+    from pkgx.other import other
+    result = int(b.total(np.arange(4, dtype=np.int64)))
+    other(3)
+    print(json.dumps({"result": result, "hits": sum(b.total.stats.cache_hits.values()),
+                      "restored": numba.config.CACHE_DIR == before, "folder": jit.cache_folder()}))
+""")
+
+
+def _package(root: Path, step: int) -> None:
+    pkg = root / "pkgx"
+    pkg.mkdir(exist_ok=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text(_HELPER.format(step=step))
+    (pkg / "b.py").write_text(_KERNEL)
+    (pkg / "other.py").write_text(_OTHER)
+
+
+def _run(root: Path, covered: str) -> dict:
+    env = dict(os.environ, SLEARN_CACHE_DIR=str(root / "slearn-cache"),
+               NUMBA_CACHE_DIR=str(root / "numba-cache"))
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(root), covered], env=env,
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_changed_callee_in_another_module_recompiles(tmp_path):
+    _package(tmp_path, step=1)
+    first = _run(tmp_path, "a.py,b.py")
+    assert first == {**first, "result": 10, "hits": 0, "restored": True}
+    assert _run(tmp_path, "a.py,b.py")["hits"] == 1  # unchanged sources: loaded from the cache
+    _package(tmp_path, step=100)
+    changed = _run(tmp_path, "a.py,b.py")
+    assert changed["result"] == 0 + 1 + 2 + 3 + 4 * 100 and changed["hits"] == 0
+    assert changed["folder"] != first["folder"]
+
+
+def test_numba_alone_would_serve_the_stale_kernel(tmp_path):
+    """Why the fingerprint covers the callee's module: without it the caller's cached code
+    (the old callee compiled in) is loaded again."""
+    _package(tmp_path, step=1)
+    assert _run(tmp_path, "b.py")["result"] == 10
+    _package(tmp_path, step=100)
+    assert _run(tmp_path, "b.py")["result"] == 10
+
+
+def test_other_librarys_kernels_keep_their_own_cache(tmp_path):
+    _package(tmp_path, step=1)
+    folder = Path(_run(tmp_path, "a.py,b.py")["folder"])
+    ours = {p.name for p in folder.rglob("*.nbi")}
+    assert any(name.startswith("b.total") for name in ours)
+    assert not any(name.startswith("other.") for name in ours)
+    assert any(p.name.startswith("other.") for p in (tmp_path / "numba-cache").rglob("*.nbi"))
+
+
+def test_fingerprint_covers_every_kernel_module():
+    names = {f"{p.parent.name}/{p.name}" for p in _jit.kernel_sources()}
+    assert {"slearn/online.py", "slearn/tokens.py", "slearn/views.py", "replay/evaluate.py"} <= names
+    assert "slearn/errors.py" not in names
+
+
+def test_prune_drops_unused_and_surplus_folders(tmp_path):
+    now = 1_000_000_000.0
+    current = tmp_path / ("c" * 16)
+    current.mkdir()
+    ages = {f"{i:016x}": i * 3600.0 for i in range(1, 12)}  # hours since last use
+    ages["old0000000000000"] = _jit.STALE_S + 1
+    for name, age in ages.items():
+        (tmp_path / name).mkdir()
+        os.utime(tmp_path / name, (now - age, now - age))
+    (tmp_path / "not-a-fingerprint").mkdir()
+    _jit.prune(tmp_path, current, now=now)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    newest = [f"{i:016x}" for i in range(1, _jit.KEEP_FOLDERS)]
+    assert left == sorted(newest + [current.name, "not-a-fingerprint"])
