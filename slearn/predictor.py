@@ -1,22 +1,30 @@
 """Prediction from a history: what each view observes next, given the actions just issued.
 
-:class:`Predictor` answers one query at a time from a frozen library (nothing changes,
-not even the scoring weights: learning trained them). The history is replayed on scratch
-view streams, exactly as the library's own streams would have seen it, and every view
-gets a prediction for the step after it. Tokens the library never saw match no context.
+:class:`Predictor` answers from a frozen library (nothing changes, not even the scoring
+weights: learning trained them). The history is replayed on scratch view streams, exactly
+as the library's own streams would have seen it, and every view gets a prediction for the
+step after it. Tokens the library never saw match no context.
+
+One query costs one compiled call: the steps are turned into tokens through a dictionary
+kept by the predictor (not one table probe per tuple), the history only moves the view
+streams, and the step loop of :mod:`slearn.online` predicts the last step alone.
+:meth:`Predictor.predict_batch` answers many queries of one episode in one call, as arrays.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
+from slearn._jit import helper, kernel
 from slearn.errors import ParameterError
 from slearn.mixer import KINDS
-from slearn.online import Reports
+from slearn.online import Reports, Run, _hold_silent, new_reports, run_codes
 from slearn.stream import Episode, Step
-from slearn.views import UNKNOWN, StepCodes, new_view_state
+from slearn.tokens import ACTION, OBSERVATION
+from slearn.views import NO_TOKEN, UNKNOWN, StepCodes, new_view_state
 
 
 @dataclass(frozen=True)
@@ -62,6 +70,27 @@ class Prediction:
         return all(v.abstained for v in self.views)
 
 
+class BatchPrediction(NamedTuple):
+    """Many queries' predictions as arrays, query ``i`` and view ``v`` at ``[i, v]``.
+
+    ``token`` is the predicted observation token (-1: abstained), ``score``, ``length`` and
+    ``kind`` as in :class:`ViewPrediction` (``kind`` indexes ``slearn.mixer.KINDS``, -1),
+    ``top``/``top_p`` the ranked tokens (-1 padded) and their shares. A token's symbols are
+    ``library.tokens.symbols(token)``; :meth:`Predictor.prediction` gives one query as a
+    :class:`Prediction`.
+    """
+
+    token: np.ndarray   # int32 (queries, views)
+    score: np.ndarray   # float64 (queries, views)
+    length: np.ndarray  # int32 (queries, views)
+    kind: np.ndarray    # int8 (queries, views)
+    top: np.ndarray     # int32 (queries, views, top_k)
+    top_p: np.ndarray   # float64 (queries, views, top_k)
+
+    def __len__(self) -> int:
+        return len(self.token)
+
+
 class Predictor:
     """Frozen predictions from a library (:class:`~slearn.library.PatternLibrary` or
     :class:`~slearn.literal.LiteralLibrary`)."""
@@ -71,6 +100,9 @@ class Predictor:
             raise ParameterError(f"top_k must be an integer in 1..1000, not {top_k!r}")
         self.library = library
         self.top_k = top_k
+        self._arrays, self._known = None, ()  # what the token dictionaries were built for
+        self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
+        self._symbols_of: dict[int, tuple[int, ...]] = {}
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -84,44 +116,268 @@ class Predictor:
         ignored). Symbols past the vocabulary are values never seen; ``unknown_views``
         gives the view of each (factored libraries)."""
         if self.library.clock == 0 or not self.library.view_names:
-            return Prediction([ViewPrediction(v, name, None, 0.0, -1, "")
-                               for v, name in enumerate(self.library.view_names)])
-        codes = self._codes(steps, unknown_views)
-        reports = self._run(codes)
-        first = int(codes.offsets[-2])
-        return Prediction([self._view(reports, first + v, v) for v in range(self._n_views())])
+            return self._silent()
+        if getattr(self.library, "streams", None) is None:
+            return self._literal(steps)
+        self._refresh()
+        codes = self._encode_steps(steps, unknown_views)
+        out = self._run_queries(codes, np.zeros(1, np.int64), np.array([len(steps) - 1], np.int64))
+        return self._prediction(out, 0)
 
+    def predict_batch(self, episode: Episode, starts, ends) -> BatchPrediction:
+        """Predict step ``ends[i]`` of ``episode`` from its steps ``starts[i]..ends[i] - 1``,
+        for every ``i`` in one compiled call: query ``i`` is ``predict(episode.steps()[
+        starts[i]:ends[i]], episode.step(ends[i])[0])`` (step ``ends[i]``'s observations
+        are ignored), and the answers are the same."""
+        starts, ends = np.asarray(starts, np.int64), np.asarray(ends, np.int64)
+        if starts.shape != ends.shape or starts.ndim != 1:
+            raise ParameterError("starts and ends must be two 1-D sequences of the same length")
+        if len(ends) and (starts.min() < 0 or np.any(starts > ends) or ends.max() >= len(episode)):
+            raise ParameterError(f"queries need 0 <= starts <= ends < {len(episode)} (the episode's steps)")
+        library = self.library
+        if library.clock == 0 or not library.view_names or getattr(library, "streams", None) is None:
+            return self._batch_of_singles(episode, starts, ends)
+        self._refresh()
+        codes = library.encode(episode, intern=False)
+        return _batch(self._run_queries(codes, starts, ends), len(ends), self._n_views(), self.top_k)
+
+    def prediction(self, batch: BatchPrediction, i: int) -> Prediction:
+        """Query ``i`` of a batch as a :class:`Prediction`."""
+        names = self.library.view_names
+        return Prediction([self._view_of(v, names[v], int(batch.token[i, v]), float(batch.score[i, v]),
+                                         int(batch.length[i, v]), int(batch.kind[i, v]),
+                                         batch.top[i, v], batch.top_p[i, v])
+                           for v in range(self._n_views())])
+
+    # --- internals ----------------------------------------------------------------------
     def _n_views(self) -> int:
         return len(self.library.view_names)
 
-    def _codes(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
+    def _silent(self) -> Prediction:
+        return Prediction([ViewPrediction(v, name, None, 0.0, -1, "")
+                           for v, name in enumerate(self.library.view_names)])
+
+    def _run_queries(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray) -> Reports:
+        """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
+        ``i * views + v`` of the result."""
         library = self.library
-        steps = steps[:-1] + [(tuple(steps[-1][0]), ())]
-        episode = Episode.from_steps(steps)
-        if unknown_views is not None and len(unknown_views) and library.factored:
-            codes = library.encode(episode, intern=False, unknown_views=unknown_views)
+        n_views = self._n_views()
+        if len(ends) == 1:  # one query: the buffers kept for it (allocating costs more than the query)
+            scratch, out, q_view, q_token, run = self._single
         else:
-            codes = library.encode(episode, intern=False)
+            scratch, out, q_view, q_token, run = _buffers(library, len(ends), self.top_k)
+        span = int((ends - starts).max()) + 2 if len(ends) else 2
+        _predict_queries(library.tree, library.mixer, scratch, codes.action, codes.offsets, codes.view,
+                         codes.token, starts, ends, q_view, q_token, np.zeros(span, np.int64),
+                         library.clock_array, run, out)
+        return out
+
+    def _prediction(self, out: Reports, i: int) -> Prediction:
+        names, n_views = self.library.view_names, self._n_views()
+        return Prediction([self._view_of(v, names[v], int(out.predicted[i * n_views + v]),
+                                         float(out.score[i * n_views + v]),
+                                         int(out.length[i * n_views + v]), int(out.kind[i * n_views + v]),
+                                         out.top[i * n_views + v], out.top_p[i * n_views + v])
+                           for v in range(n_views)])
+
+    def _view_of(self, v: int, name: str, token: int, score: float, length: int, kind: int,
+                 top: np.ndarray, top_p: np.ndarray) -> ViewPrediction:
+        if token < 0:
+            return ViewPrediction(v, name, None, 0.0, -1, "")
+        symbols = self._symbols
+        ranked = [(symbols(t), p) for t, p in zip(top.tolist(), top_p.tolist()) if t >= 0]
+        return ViewPrediction(v, name, symbols(token), score, length, KINDS[kind], ranked)
+
+    def _symbols(self, token: int) -> tuple[int, ...]:
+        found = self._symbols_of.get(token)
+        if found is None:
+            found = self._symbols_of[token] = self.library.tokens.symbols(token)
+        return found
+
+    def _batch_of_singles(self, episode: Episode, starts: np.ndarray, ends: np.ndarray) -> BatchPrediction:
+        """Libraries without view streams (the literal rule), or empty: query by query."""
+        steps, n_views, k = episode.steps(), self._n_views(), self.top_k
+        out = new_reports(len(ends) * n_views, k)
+        table = self.library.tokens
+        for i, (s, e) in enumerate(zip(starts.tolist(), ends.tolist())):
+            prediction = self.predict(steps[s:e], steps[e][0])
+            for v, view in enumerate(prediction.views):
+                r = i * n_views + v
+                if view.abstained:
+                    continue
+                out.predicted[r] = table.find(OBSERVATION, view.observations)
+                out.score[r], out.length[r] = view.score, view.length
+                out.kind[r] = KINDS.index(view.kind)
+                for j, (symbols, share) in enumerate(view.ranked[:k]):
+                    out.top[r, j], out.top_p[r, j] = table.find(OBSERVATION, symbols), share
+        return _batch(out, len(ends), n_views, k)
+
+    # --- steps to tokens ----------------------------------------------------------------
+    def _token(self, kind: int, symbols: tuple[int, ...]) -> int:
+        key = (kind, symbols)
+        found = self._token_of.get(key)
+        if found is None:
+            found = self.library.tokens.find(kind, symbols)
+            found = self._token_of[key] = found if found >= 0 else UNKNOWN
+        return found
+
+    def _refresh(self) -> None:
+        """Forget the dictionaries when the library learned tokens or views since."""
+        library = self.library
+        arrays, known = library.tokens.arrays, (len(library.tokens), len(library.view_names))
+        if arrays is not self._arrays or known != self._known:
+            library.prepare()
+            self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
+            self._single = _buffers(library, 1, self.top_k)
+
+    def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
+        """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
+        observations dropped, through the token dictionary."""
+        library = self.library
+        steps = [(tuple(a), tuple(o)) for a, o in steps[:-1]] + [(tuple(steps[-1][0]), ())]
+        if not library.has_actions and any(a for a, _ in steps):
+            raise ParameterError("this library learned a stream without actions; an episode with "
+                                 "actions needs a library made with has_actions=True")
+        if library.vocabulary is None:
+            view_of = _joint_views(steps)
+        else:
+            view_of = library._factored_mapping()
+            if unknown_views is not None and len(unknown_views):
+                view_of = np.concatenate((view_of, np.asarray(unknown_views, np.int32)))
+            _check_vocabulary(steps, len(view_of))
+            view_of = view_of.tolist()
+        return self._codes_of(steps, view_of)
+
+    def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
+        token = self._token
+        actions, offsets, views, tokens = [], [0], [], []
+        for acts, obs in steps:
+            actions.append(token(ACTION, acts))
+            if obs:
+                for v, group in _by_view(obs, view_of):
+                    views.append(v)
+                    tokens.append(token(OBSERVATION, group))
+            offsets.append(len(views))
+        return StepCodes(np.array(actions, np.int32), np.array(offsets, np.int64),
+                         np.array(views, np.int32), np.array(tokens, np.int32))
+
+    def _literal(self, steps: list[Step]) -> Prediction:
+        library = self.library
+        codes = library.encode(Episode.from_steps(steps[:-1] + [(tuple(steps[-1][0]), ())]), intern=False)
         n_views = self._n_views()
         offsets = codes.offsets.copy()
         offsets[-1] = offsets[-2] + n_views  # the last step reports every view, truth unknown
-        return StepCodes(codes.action, offsets,
-                         np.concatenate((codes.view[: offsets[-2]], np.arange(n_views, dtype=np.int32))),
-                         np.concatenate((codes.token[: offsets[-2]], np.full(n_views, UNKNOWN, np.int32))))
+        codes = StepCodes(codes.action, offsets,
+                          np.concatenate((codes.view[: offsets[-2]], np.arange(n_views, dtype=np.int32))),
+                          np.concatenate((codes.token[: offsets[-2]], np.full(n_views, UNKNOWN, np.int32))))
+        out = library.run(codes, learn=False, record=True, top_k=self.top_k)
+        first = int(codes.offsets[-2])
+        return Prediction([self._view_of(v, library.view_names[v], int(out.predicted[first + v]),
+                                         float(out.score[first + v]), int(out.length[first + v]),
+                                         int(out.kind[first + v]), out.top[first + v], out.top_p[first + v])
+                           for v in range(n_views)])
 
-    def _run(self, codes: StepCodes) -> Reports:
-        library = self.library
-        if getattr(library, "streams", None) is None:
-            return library.run(codes, learn=False, record=True, top_k=self.top_k)
-        scratch = new_view_state(len(library.streams.root), library.max_context, library.streams.root)
-        return library.run(codes, learn=False, record=True, top_k=self.top_k, streams=scratch)
 
-    def _view(self, reports: Reports, r: int, v: int) -> ViewPrediction:
-        symbols = self.library.tokens.symbols
-        name = self.library.view_names[v]
-        token = int(reports.predicted[r])
-        if token < 0:
-            return ViewPrediction(v, name, None, 0.0, -1, "")
-        ranked = [(symbols(int(t)), float(p)) for t, p in zip(reports.top[r], reports.top_p[r]) if t >= 0]
-        return ViewPrediction(v, name, symbols(token), float(reports.score[r]), int(reports.length[r]),
-                              KINDS[int(reports.kind[r])], ranked)
+def _joint_views(steps: list[Step]) -> dict | None:
+    """Without a vocabulary every observation symbol is view 0 (``views.joint_mapping``)."""
+    acted = {s for a, _ in steps for s in a}
+    if acted and any(s in acted for _, o in steps for s in o):
+        raise ParameterError("a symbol is used both as an action and as an observation: "
+                             "give the library a vocabulary")
+    return None
+
+
+def _check_vocabulary(steps: list[Step], known: int) -> None:
+    top = max((s for a, o in steps for s in (*a, *o)), default=-1)
+    if top >= known:
+        raise ParameterError(f"symbol {top} is not in the library's vocabulary")
+
+
+def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]:
+    """A step's observations grouped by view, views in order (``views._encode``)."""
+    if view_of is None:
+        return [(0, obs)]
+    groups: dict[int, list[int]] = {}
+    for s in obs:
+        v = view_of[s]
+        if v >= 0:
+            groups.setdefault(v, []).append(s)
+    return [(v, tuple(groups[v])) for v in sorted(groups)]
+
+
+def _buffers(library, queries: int, top_k: int) -> tuple:
+    """Scratch streams, reports, the last steps' report layout and the run's scalars."""
+    n_views = len(library.view_names)
+    n = queries * n_views
+    run = Run(library.has_actions, library.empty_action, library.empty_observation,
+              np.iinfo(np.int64).max, False, True)
+    return (new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
+            np.tile(np.arange(n_views, dtype=np.int32), queries), np.full(n, UNKNOWN, np.int32), run)
+
+
+def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPrediction:
+    shape = (queries, n_views)
+    return BatchPrediction(out.predicted.reshape(shape), out.score.reshape(shape),
+                           out.length.reshape(shape), out.kind.reshape(shape),
+                           out.top.reshape(shape + (top_k,)), out.top_p.reshape(shape + (top_k,)))
+
+
+@kernel
+def _predict_queries(tree, mixer, scratch, action, offsets, view, token, starts, ends, q_view,
+                     q_token, q_offsets, clock, run, out):
+    """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, then
+    run step ``ends[i]`` (its action; every view reporting ``q_token``) through ``run_codes``,
+    as if the query's steps were an episode of their own. Rows ``i * views ..`` of ``out``."""
+    recent, filled, held = scratch.recent, scratch.filled, scratch.held
+    n_views = len(filled)
+    for i in range(len(starts)):
+        s, e = starts[i], ends[i]
+        filled[:] = 0
+        held[:] = NO_TOKEN
+        for step in range(s, e):
+            _replay_step(recent, filled, held, action[step], step > s, view, token, offsets[step],
+                         offsets[step + 1], run.has_actions, run.empty_action, run.empty_observation)
+        j = e - s
+        q_action = action[s:e + 1]
+        q_offsets[j] = i * n_views
+        q_offsets[j + 1] = (i + 1) * n_views
+        _abstain(out, i * n_views, (i + 1) * n_views)
+        run_codes(tree, mixer, scratch, q_action, q_offsets[:j + 2], q_view, q_token, j, clock, run, out)
+
+
+@helper
+def _abstain(out, r0, r1):
+    """Rows ``r0..r1`` of ``out`` as ``new_reports`` makes them (buffers are reused)."""
+    for r in range(r0, r1):
+        out.predicted[r] = -1
+        out.length[r] = -1
+        out.kind[r] = -1
+        out.score[r] = 0.0
+        out.truth_p[r] = 0.0
+        out.context[r] = False
+        out.markov[r] = -1
+        out.frequency[r] = -1
+        out.persistence[r] = -1
+        for k in range(out.top.shape[1]):
+            out.top[r, k] = -1
+            out.top_p[r, k] = 0.0
+
+
+@helper
+def _replay_step(recent, filled, held, a, later, view, token, r0, r1, has_actions, empty_action,
+                 empty_observation):
+    """One history step on the view streams, as ``run_codes`` moves them without learning
+    or recording (the first step of an episode pushes no empty action)."""
+    K = recent.shape[1]
+    push_action = has_actions and (later or a != empty_action)
+    if push_action:
+        for v in range(len(filled)):
+            recent[v, filled[v] % K] = a
+            filled[v] += 1
+    for r in range(r0, r1):
+        v = view[r]
+        recent[v, filled[v] % K] = token[r]
+        filled[v] += 1
+        held[v] = token[r]
+    if push_action:
+        _hold_silent(recent, filled, held, view, r0, r1, empty_observation)

@@ -1,0 +1,123 @@
+"""The predictor's fast paths (one compiled call per query, and batches) against the step
+loop itself: the query's steps run as an episode of their own on scratch streams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from slearn.errors import ParameterError
+from slearn.library import PatternLibrary
+from slearn.literal import LiteralLibrary
+from slearn.predictor import Predictor
+from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
+from slearn.stream import Episode
+from slearn.views import UNKNOWN, StepCodes, new_view_state
+
+
+def reference(library, steps, top_k, unknown_views=None):
+    """What ``library.run`` predicts for the last step of ``steps`` replayed from scratch
+    (the per-call path before the fast one): rows per view."""
+    steps = list(steps[:-1]) + [(tuple(steps[-1][0]), ())]
+    codes = library.encode(Episode.from_steps(steps), intern=False, unknown_views=unknown_views) \
+        if unknown_views is not None else library.encode(Episode.from_steps(steps), intern=False)
+    n_views = len(library.view_names)
+    offsets = codes.offsets.copy()
+    offsets[-1] = offsets[-2] + n_views
+    codes = StepCodes(codes.action, offsets,
+                      np.concatenate((codes.view[: offsets[-2]], np.arange(n_views, dtype=np.int32))),
+                      np.concatenate((codes.token[: offsets[-2]], np.full(n_views, UNKNOWN, np.int32))))
+    scratch = new_view_state(n_views, library.max_context, library.streams.root)
+    out = library.run(codes, learn=False, record=True, top_k=top_k, streams=scratch)
+    rows = slice(int(offsets[-2]), int(offsets[-1]))
+    return out.predicted[rows], out.score[rows], out.length[rows], out.kind[rows], out.top[rows], out.top_p[rows]
+
+
+def assert_batch_matches(predictor, episode, starts, ends):
+    batch = predictor.predict_batch(episode, starts, ends)
+    steps = episode.steps()
+    for i, (s, e) in enumerate(zip(starts, ends)):
+        token, score, length, kind, top, top_p = reference(predictor.library, steps[s:e + 1], predictor.top_k)
+        assert batch.token[i].tolist() == token.tolist()
+        assert batch.score[i].tolist() == score.tolist()
+        assert batch.length[i].tolist() == length.tolist() and batch.kind[i].tolist() == kind.tolist()
+        assert batch.top[i].tolist() == top.tolist() and batch.top_p[i].tolist() == top_p.tolist()
+        assert predictor.predict(steps[s:e], steps[e][0]) == predictor.prediction(batch, i)
+    return batch
+
+
+def random_episode(rng, n, observations=5, actions=(100, 101, 102)):
+    obs = rng.integers(0, observations, n + 1)
+    return Episode.from_pairs(obs[:1], rng.choice(actions, n), obs[1:])
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 5), st.integers(1, 4))
+def test_joint_library_batch_equals_the_step_loop(seed, max_length, top_k):
+    rng = np.random.default_rng(seed)
+    library = PatternLibrary(max_length=max_length)
+    library.learn(random_episode(rng, 300))
+    held_out = random_episode(rng, 60, observations=6, actions=(100, 101, 102, 103))  # unseen ones too
+    ends = rng.integers(0, len(held_out), 30)
+    starts = np.maximum(0, ends - rng.integers(0, 3 * max_length, 30))
+    batch = assert_batch_matches(Predictor(library, top_k=top_k), held_out, starts, ends)
+    assert (batch.token >= 0).any() and batch.top.shape == (30, 1, top_k)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 3))
+def test_factored_library_batch_equals_the_step_loop(seed, joints):
+    library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(joints))
+    library.learn(simulate_arm(ArmConfig(joints=joints, trials=400, seed=seed % 1000)).to_episode())
+    held_out = simulate_arm(ArmConfig(joints=joints, trials=40, seed=seed % 1000 + 1)).to_episode()
+    rng = np.random.default_rng(seed)
+    ends = rng.integers(0, len(held_out), 20)
+    starts = np.maximum(0, ends - rng.integers(0, 12, 20))
+    batch = assert_batch_matches(Predictor(library), held_out, starts, ends)
+    assert batch.token.shape == (20, joints) and (batch.token >= 0).any()
+
+
+def test_values_never_seen_match_the_step_loop():
+    library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(2))
+    library.learn(simulate_arm(ArmConfig(joints=2, trials=300, seed=4)).to_episode())
+    steps = simulate_arm(ArmConfig(joints=2, trials=10, seed=5)).to_episode().steps()
+    fresh = len(library.vocabulary)
+    steps[-2] = (steps[-2][0], (fresh,))  # a value of view 1 never seen
+    unknown = np.array([1], np.int32)
+    got = Predictor(library).predict_unknown(steps, unknown)
+    token = reference(library, steps, 3, unknown)[0]
+    assert [library.tokens.symbols(t) if t >= 0 else None for t in token.tolist()] == \
+        [v.observations for v in got.views]
+
+
+def test_a_predictor_follows_the_library_as_it_learns():
+    rng = np.random.default_rng(7)
+    library = PatternLibrary(max_length=3)
+    predictor = Predictor(library)
+    episode = random_episode(rng, 200)
+    assert predictor.predict(episode.steps()[:5], (100,)).abstained
+    library.learn(episode)
+    library.learn(random_episode(rng, 200, observations=8))  # new tokens: the dictionaries renew
+    assert_batch_matches(predictor, random_episode(rng, 30, observations=8), np.arange(0, 20), np.arange(5, 25))
+
+
+def test_literal_library_batch_is_its_single_predictions():
+    rng = np.random.default_rng(3)
+    library = LiteralLibrary(3)
+    library.learn(random_episode(rng, 300))
+    held_out = random_episode(rng, 40)
+    predictor = Predictor(library, top_k=2)
+    batch = predictor.predict_batch(held_out, np.arange(0, 30), np.arange(4, 34))
+    steps = held_out.steps()
+    for i in range(30):
+        assert predictor.prediction(batch, i) == predictor.predict(steps[i:i + 4], steps[i + 4][0])
+    assert (batch.token >= 0).any()
+
+
+@pytest.mark.parametrize("starts, ends", [([0, 1], [1]), ([2], [1]), ([-1], [0]), ([0], [40])])
+def test_bad_query_bounds_are_refused(starts, ends):
+    library = PatternLibrary()
+    library.learn(random_episode(np.random.default_rng(0), 50))
+    with pytest.raises(ParameterError):
+        Predictor(library).predict_batch(random_episode(np.random.default_rng(1), 39), starts, ends)
