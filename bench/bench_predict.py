@@ -1,0 +1,120 @@
+"""Python API prediction speed, each figure against its anchor in the same run.
+
+On a pointer log (``--condition``, ``--train`` trials learned, queries from a held-out
+episode of ``--queries`` trials; each query is the last ``max_length`` steps and the next
+action):
+
+- ``Predictor.predict``, one call at a time (issue 12: >= 200,000/s), against a pure-Python
+  dict model of the same order (the longest context seen, its most frequent outcome: one
+  dict lookup per length);
+- ``Predictor.predict_batch``, all queries in one call (issue 12: >= 2,000,000/s), against
+  the frozen replay core (``library.run`` over the held-out episode, one prediction per step,
+  the path ``slearn replay`` takes).
+
+Rates are in CPU time of this process (the machine may be shared); best of ``--repeat``.
+Run: ``python bench/bench_predict.py [--train 20000] [--queries 20000] [--json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import Counter
+
+import numpy as np
+
+from slearn.library import PatternLibrary
+from slearn.predictor import Predictor
+from slearn.recorders.pointer import PointerConfig, simulate
+
+
+class DictModel:
+    """The anchor: contexts of 1..order steps (observation, action, ..., action) -> counts."""
+
+    def __init__(self, order: int) -> None:
+        self.order = order
+        self.best: dict[tuple, tuple] = {}
+
+    def learn(self, steps: list) -> None:
+        counts: dict[tuple, Counter] = {}
+        for t in range(1, len(steps)):
+            for k in range(1, min(self.order, t) + 1):
+                context = tuple(x for s in steps[t - k:t] for x in s[1]) + tuple(steps[t][0]) + (k,)
+                counts.setdefault(context, Counter())[steps[t][1]] += 1
+        self.best = {c: counter.most_common(1)[0][0] for c, counter in counts.items()}
+
+    def predict(self, history: list, actions: tuple):
+        for k in range(min(self.order, len(history)), 0, -1):
+            context = tuple(x for s in history[-k:] for x in s[1]) + tuple(actions) + (k,)
+            found = self.best.get(context)
+            if found is not None:
+                return found
+        return None
+
+
+def best_rate(function, items: int, repeat: int) -> float:
+    """Items per CPU second, the best of ``repeat`` runs."""
+    best = float("inf")
+    for _ in range(repeat):
+        started = time.process_time()
+        function()
+        best = min(best, time.process_time() - started)
+    return items / best
+
+
+def measure(condition: str, train: int, queries: int, repeat: int) -> dict:
+    library = PatternLibrary()
+    train_episode = simulate(PointerConfig(condition, trials=train, seed=1)).to_episode()
+    library.learn(train_episode)
+    held_out = simulate(PointerConfig(condition, trials=queries, seed=2)).to_episode()
+    steps, h = held_out.steps(), library.max_length
+    ends = np.arange(h, len(held_out))
+    starts = ends - h
+    calls = [(steps[e - h:e], steps[e][0]) for e in ends.tolist()]
+    predictor = Predictor(library)
+    predictor.predict(*calls[0])
+    predictor.predict_batch(held_out, starts[:2], ends[:2])
+    naive = DictModel(h)
+    naive.learn(train_episode.steps())
+    codes = library.encode(held_out, intern=False)
+    out = {"condition": condition, "train_trials": train, "queries": len(calls),
+           "predict_per_s": best_rate(lambda: [predictor.predict(x, a) for x, a in calls], len(calls), repeat),
+           "dict_model_per_s": best_rate(lambda: [naive.predict(x, a) for x, a in calls], len(calls), repeat),
+           "batch_per_s": best_rate(lambda: predictor.predict_batch(held_out, starts, ends), len(calls), repeat),
+           "replay_core_per_s": best_rate(lambda: library.run(codes, learn=False, record=True),
+                                          codes.n_reports, repeat)}
+    batch = predictor.predict_batch(held_out, starts, ends)
+    said = [predictor.prediction(batch, i).observations for i in range(len(calls))]
+    truth = [steps[e][1] for e in ends.tolist()]
+    out["batch_accuracy"] = float(np.mean([s == t for s, t in zip(said, truth)]))
+    out["dict_model_accuracy"] = float(np.mean([naive.predict(x, a) == t for (x, a), t in zip(calls, truth)]))
+    return out
+
+
+def render(r: dict) -> str:
+    return "\n".join([
+        f"pointer {r['condition']}: {r['train_trials']:,} trials learned, {r['queries']:,} queries "
+        f"(accuracy: slearn {r['batch_accuracy']:.3f}, dict model {r['dict_model_accuracy']:.3f})",
+        f"predict, one call at a time {r['predict_per_s']:>12,.0f}/s   dict model "
+        f"{r['dict_model_per_s']:>10,.0f}/s   ratio {r['predict_per_s'] / r['dict_model_per_s']:.3f}   "
+        f"target 200,000/s ({r['predict_per_s'] / 200_000:.2f} of it)",
+        f"predict_batch               {r['batch_per_s']:>12,.0f}/s   replay core "
+        f"{r['replay_core_per_s']:>9,.0f}/s   ratio {r['batch_per_s'] / r['replay_core_per_s']:.3f}   "
+        f"target 2,000,000/s ({r['batch_per_s'] / 2_000_000:.2f} of it)"])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--condition", default="simple")
+    parser.add_argument("--train", type=int, default=20_000)
+    parser.add_argument("--queries", type=int, default=20_000)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--json", action="store_true", help="print one JSON document")
+    args = parser.parse_args()
+    result = measure(args.condition, args.train, args.queries, args.repeat)
+    print(json.dumps(result, indent=2) if args.json else render(result))
+
+
+if __name__ == "__main__":
+    main()
