@@ -28,6 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numba
+from numba.core import types
 
 _MARKER = b"from slearn._jit import"
 _PACKAGES = ("slearn", "slearn.replay", "slearn.recorders")
@@ -40,13 +41,38 @@ STALE_S = 7 * 24 * 3600
 def kernel(function):
     """Compile ``function`` as a cached kernel (it may allocate)."""
     with _slearn_cache():
-        return numba.njit(cache=True)(function)
+        return _plain_calls(numba.njit(cache=True)(function))
 
 
 def helper(function):
     """Compile ``function`` as a cached per-step helper: no reference counting, no allocation."""
     with _slearn_cache():
-        return numba.njit(cache=True, _nrt=False)(function)
+        return _plain_calls(numba.njit(cache=True, _nrt=False)(function))
+
+
+def _plain_calls(dispatcher):
+    """Called from compiled code, compile ``dispatcher`` for the plain types of its arguments.
+
+    Numba types a constant argument as a literal (``Literal[int](0)`` for ``m = 0``) and
+    compiles the callee once more for it, and once more for an ``int32`` where another call
+    passes an ``int64``: a second (third, fourth) compilation of most helpers, a third of a
+    cold start's compile time. One signature serves every call: literals as their plain
+    type, signed integer scalars as ``int64`` (numba computes in ``int64`` anyway).
+    """
+    resolve = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return resolve(tuple(_plain(a) for a in args), {k: _plain(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
+
+
+def _plain(numba_type):
+    numba_type = types.unliteral(numba_type)
+    if isinstance(numba_type, types.Integer) and numba_type.signed and numba_type.bitwidth < 64:
+        return types.int64
+    return numba_type
 
 
 class _slearn_cache:

@@ -111,3 +111,20 @@ def test_prune_drops_unused_and_surplus_folders(tmp_path):
     left = sorted(p.name for p in tmp_path.iterdir())
     newest = [f"{i:016x}" for i in range(1, _jit.KEEP_FOLDERS)]
     assert left == sorted(newest + [current.name, "not-a-fingerprint"])
+
+
+def test_a_helper_compiles_once_for_literal_and_narrow_arguments():
+    """A constant (``Literal[int]``) or an ``int32`` scalar argument compiles no second
+    version of a callee: one plain signature serves every call."""
+    import numpy as np
+
+    @_jit.helper
+    def add(a, b):
+        return a + b
+
+    @_jit.kernel
+    def calls(values):
+        return add(0, values[0]) + add(values[0], np.int64(1)) + add(np.int32(2), values[1])
+
+    assert calls(np.array([5, 7], np.int32)) == 5 + 6 + 9
+    assert add.signatures == [(_jit.types.int64, _jit.types.int64)]
