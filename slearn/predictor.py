@@ -20,11 +20,12 @@ import numpy as np
 
 from slearn._jit import helper, kernel
 from slearn.errors import ParameterError
-from slearn.mixer import KINDS
+from slearn.context_tree import Tree
+from slearn.mixer import KINDS, Mixer
 from slearn.online import Reports, Run, _hold_silent, new_reports, run_codes
 from slearn.stream import Episode, Step
 from slearn.tokens import ACTION, OBSERVATION
-from slearn.views import NO_TOKEN, UNKNOWN, StepCodes, new_view_state
+from slearn.views import NO_TOKEN, UNKNOWN, StepCodes, ViewState, new_view_state
 
 
 @dataclass(frozen=True)
@@ -167,9 +168,10 @@ class Predictor:
         else:
             scratch, out, q_view, q_token, run = _buffers(library, len(ends), self.top_k)
         span = int((ends - starts).max()) + 2 if len(ends) else 2
-        _predict_queries(library.tree, library.mixer, scratch, codes.action, codes.offsets, codes.view,
-                         codes.token, starts, ends, q_view, q_token, np.zeros(span, np.int64),
-                         library.clock_array, run, out)
+        # Plain tuples: numba types a NamedTuple argument in Python, microseconds per call.
+        _predict_queries(tuple(library.tree), tuple(library.mixer), tuple(scratch), codes.action,
+                         codes.offsets, codes.view, codes.token, starts, ends, q_view, q_token,
+                         np.zeros(span, np.int64), library.clock_array, *run, tuple(out))
         return out
 
     def _prediction(self, out: Reports, i: int) -> Prediction:
@@ -309,8 +311,7 @@ def _buffers(library, queries: int, top_k: int) -> tuple:
     """Scratch streams, reports, the last steps' report layout and the run's scalars."""
     n_views = len(library.view_names)
     n = queries * n_views
-    run = Run(library.has_actions, library.empty_action, library.empty_observation,
-              np.iinfo(np.int64).max, False, True)
+    run = (library.has_actions, library.empty_action, library.empty_observation)
     return (new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
             np.tile(np.arange(n_views, dtype=np.int32), queries), np.full(n, UNKNOWN, np.int32), run)
 
@@ -322,12 +323,21 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
                            out.top.reshape(shape + (top_k,)), out.top_p.reshape(shape + (top_k,)))
 
 
+_NO_BOUND = np.iinfo(np.int64).max  # frozen runs add no entries
+
+
 @kernel
-def _predict_queries(tree, mixer, scratch, action, offsets, view, token, starts, ends, q_view,
-                     q_token, q_offsets, clock, run, out):
+def _predict_queries(tree_arrays, mixer_arrays, scratch_arrays, action, offsets, view, token, starts,
+                     ends, q_view, q_token, q_offsets, clock, has_actions, empty_action,
+                     empty_observation, out_arrays):
     """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, then
     run step ``ends[i]`` (its action; every view reporting ``q_token``) through ``run_codes``,
-    as if the query's steps were an episode of their own. Rows ``i * views ..`` of ``out``."""
+    as if the query's steps were an episode of their own. Rows ``i * views ..`` of ``out``.
+    State comes as plain tuples of arrays (the fields of ``Tree``, ``Mixer``, ``ViewState``,
+    ``Reports``)."""
+    tree, mixer, scratch = Tree(*tree_arrays), Mixer(*mixer_arrays), ViewState(*scratch_arrays)
+    out = Reports(*out_arrays)
+    run = Run(has_actions, empty_action, empty_observation, _NO_BOUND, False, True, False, True)
     recent, filled, held = scratch.recent, scratch.filled, scratch.held
     n_views = len(filled)
     for i in range(len(starts)):
