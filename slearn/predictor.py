@@ -102,6 +102,7 @@ class Predictor:
         self.library = library
         self.top_k = top_k
         self._arrays, self._known = None, ()  # what the token dictionaries were built for
+        self._state: tuple = (None, None)  # the library's tree and mixer, and as plain tuples
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
 
@@ -122,7 +123,8 @@ class Predictor:
             return self._literal(steps)
         self._refresh()
         codes = self._encode_steps(steps, unknown_views)
-        out = self._run_queries(codes, np.zeros(1, np.int64), np.array([len(steps) - 1], np.int64))
+        out = self._run_queries(codes, np.zeros(1, np.int64), np.array([len(steps) - 1], np.int64),
+                                self._single)
         return self._prediction(out, 0)
 
     def predict_batch(self, episode: Episode, starts, ends) -> BatchPrediction:
@@ -140,7 +142,8 @@ class Predictor:
             return self._batch_of_singles(episode, starts, ends)
         self._refresh()
         codes = library.encode(episode, intern=False)
-        return _batch(self._run_queries(codes, starts, ends), len(ends), self._n_views(), self.top_k)
+        out = self._run_queries(codes, starts, ends, _buffers(library, len(ends), self.top_k))
+        return _batch(out, len(ends), self._n_views(), self.top_k)
 
     def prediction(self, batch: BatchPrediction, i: int) -> Prediction:
         """Query ``i`` of a batch as a :class:`Prediction`."""
@@ -158,19 +161,19 @@ class Predictor:
         return Prediction([ViewPrediction(v, name, None, 0.0, -1, "")
                            for v, name in enumerate(self.library.view_names)])
 
-    def _run_queries(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray) -> Reports:
+    def _run_queries(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray,
+                     buffers: tuple) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
-        ``i * views + v`` of the result."""
+        ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
+        the predictor: allocating them costs more than the query)."""
         library = self.library
-        n_views = self._n_views()
-        if len(ends) == 1:  # one query: the buffers kept for it (allocating costs more than the query)
-            scratch, out, q_view, q_token, run = self._single
-        else:
-            scratch, out, q_view, q_token, run = _buffers(library, len(ends), self.top_k)
+        scratch, out, q_view, q_token, run = buffers
         span = int((ends - starts).max()) + 2 if len(ends) else 2
+        if library.tree is not self._state[0] or library.mixer is not self._state[1]:
+            self._state = (library.tree, library.mixer, tuple(library.tree), tuple(library.mixer))
         # Plain tuples: numba types a NamedTuple argument in Python, microseconds per call.
-        _predict_queries(tuple(library.tree), tuple(library.mixer), tuple(scratch), codes.action,
-                         codes.offsets, codes.view, codes.token, starts, ends, q_view, q_token,
+        _predict_queries(self._state[2], self._state[3], scratch, codes.action, codes.offsets,
+                         codes.view, codes.token, starts, ends, q_view, q_token,
                          np.zeros(span, np.int64), library.clock_array, *run, tuple(out))
         return out
 
@@ -251,14 +254,18 @@ class Predictor:
         return self._codes_of(steps, view_of)
 
     def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
-        token = self._token
+        token, known = self._token, self._token_of.get
         actions, offsets, views, tokens = [], [0], [], []
         for acts, obs in steps:
-            actions.append(token(ACTION, acts))
+            key = (ACTION, acts)
+            t = known(key)
+            actions.append(t if t is not None else token(*key))
             if obs:
-                for v, group in _by_view(obs, view_of):
+                for v, group in ((0, obs),) if view_of is None else _by_view(obs, view_of):
+                    key = (OBSERVATION, group)
+                    t = known(key)
                     views.append(v)
-                    tokens.append(token(OBSERVATION, group))
+                    tokens.append(t if t is not None else token(*key))
             offsets.append(len(views))
         return StepCodes(np.array(actions, np.int32), np.array(offsets, np.int64),
                          np.array(views, np.int32), np.array(tokens, np.int32))
@@ -297,8 +304,6 @@ def _check_vocabulary(steps: list[Step], known: int) -> None:
 
 def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]:
     """A step's observations grouped by view, views in order (``views._encode``)."""
-    if view_of is None:
-        return [(0, obs)]
     groups: dict[int, list[int]] = {}
     for s in obs:
         v = view_of[s]
@@ -312,7 +317,7 @@ def _buffers(library, queries: int, top_k: int) -> tuple:
     n_views = len(library.view_names)
     n = queries * n_views
     run = (library.has_actions, library.empty_action, library.empty_observation)
-    return (new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
+    return (tuple(new_view_state(n_views, library.max_context, library.streams.root)), new_reports(n, top_k),
             np.tile(np.arange(n_views, dtype=np.int32), queries), np.full(n, UNKNOWN, np.int32), run)
 
 

@@ -121,3 +121,16 @@ def test_bad_query_bounds_are_refused(starts, ends):
     library.learn(random_episode(np.random.default_rng(0), 50))
     with pytest.raises(ParameterError):
         Predictor(library).predict_batch(random_episode(np.random.default_rng(1), 39), starts, ends)
+
+
+def test_a_batch_of_one_is_not_overwritten_by_later_calls():
+    rng = np.random.default_rng(5)
+    library = PatternLibrary(max_length=2)
+    library.learn(random_episode(rng, 200))
+    predictor = Predictor(library)
+    held_out = random_episode(rng, 20)
+    batch = predictor.predict_batch(held_out, [0], [4])
+    kept = batch.token.copy(), batch.top_p.copy()
+    for t in range(1, 15):
+        predictor.predict(held_out.steps()[t:t + 3], held_out.steps()[t + 3][0])
+    assert batch.token.tolist() == kept[0].tolist() and batch.top_p.tolist() == kept[1].tolist()
