@@ -219,11 +219,15 @@ class Predictor:
 
     # --- steps to tokens ----------------------------------------------------------------
     def _token(self, kind: int, symbols: tuple[int, ...]) -> int:
+        """The token of a tuple (``UNKNOWN``: never seen). Only tokens the library holds are
+        remembered, so the dictionary stays as small as the token table whatever is asked."""
         key = (kind, symbols)
         found = self._token_of.get(key)
         if found is None:
             found = self.library.tokens.find(kind, symbols)
-            found = self._token_of[key] = found if found >= 0 else UNKNOWN
+            if found < 0:
+                return UNKNOWN
+            self._token_of[key] = found
         return found
 
     def _refresh(self) -> None:
@@ -244,7 +248,8 @@ class Predictor:
             raise ParameterError("this library learned a stream without actions; an episode with "
                                  "actions needs a library made with has_actions=True")
         if library.vocabulary is None:
-            view_of = _joint_views(steps)
+            _check_joint(steps)
+            view_of = None
         else:
             view_of = library._factored_mapping()
             if unknown_views is not None and len(unknown_views):
@@ -254,6 +259,7 @@ class Predictor:
         return self._codes_of(steps, view_of)
 
     def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
+        """Steps as codes; ``view_of`` maps symbols to views (``None``: one joint view)."""
         token, known = self._token, self._token_of.get
         actions, offsets, views, tokens = [], [0], [], []
         for acts, obs in steps:
@@ -287,13 +293,13 @@ class Predictor:
                            for v in range(n_views)])
 
 
-def _joint_views(steps: list[Step]) -> dict | None:
-    """Without a vocabulary every observation symbol is view 0 (``views.joint_mapping``)."""
+def _check_joint(steps: list[Step]) -> None:
+    """Without a vocabulary every observation symbol is view 0: no symbol may be both an
+    action and an observation (``views.joint_mapping``)."""
     acted = {s for a, _ in steps for s in a}
     if acted and any(s in acted for _, o in steps for s in o):
         raise ParameterError("a symbol is used both as an action and as an observation: "
                              "give the library a vocabulary")
-    return None
 
 
 def _check_vocabulary(steps: list[Step], known: int) -> None:

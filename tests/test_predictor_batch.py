@@ -134,3 +134,22 @@ def test_a_batch_of_one_is_not_overwritten_by_later_calls():
     for t in range(1, 15):
         predictor.predict(held_out.steps()[t:t + 3], held_out.steps()[t + 3][0])
     assert batch.token.tolist() == kept[0].tolist() and batch.top_p.tolist() == kept[1].tolist()
+
+
+def test_the_token_dictionary_holds_only_the_librarys_tokens():
+    rng = np.random.default_rng(9)
+    library = PatternLibrary(max_length=2)
+    library.learn(random_episode(rng, 100))
+    predictor = Predictor(library)
+    for value in range(1000, 1300):  # values never seen: nothing to remember
+        steps = [((), (value,)), ((100,), ())]
+        said = predictor.predict_unknown(steps).views[0]
+        assert said.length == reference(library, steps, 3)[2][0] <= 1  # only the action matched
+    assert len(predictor._token_of) <= len(library.tokens)
+
+
+def test_a_symbol_both_action_and_observation_is_refused_without_a_vocabulary():
+    library = PatternLibrary(max_length=2)
+    library.learn(random_episode(np.random.default_rng(2), 100))
+    with pytest.raises(ParameterError, match="both as an action and as an observation"):
+        Predictor(library).predict([((), (100,))], (100,))
