@@ -1,29 +1,47 @@
-"""Ingest throughput: messages/s and events/s, next to the mcap library's raw rate.
+"""Ingest throughput against mcap's own decoder, and the memory of learning long logs.
 
-Run: ``python bench/bench_ingest.py`` (uses ``../shared`` logs when present).
+Run: ``python bench/bench_ingest.py`` (add ``--rss`` for the memory figures; uses
+``../shared`` logs when present).
 
-For each log: the mcap library's ``make_reader(f).iter_messages()`` (raw, undecoded),
-slearn's raw reader (:func:`slearn.mcap_read.iter_messages`), and the whole ingest path
-(:func:`slearn.serialize.read_episodes`: read, decode the spec's topics, extract fields,
-symbolize, build the episode). Best of three runs.
+Speed, per log, best of ``--runs`` runs, each figure also as a ratio to the anchor measured
+in the same run: the anchor is the mcap library's ``iter_decoded_messages`` over the spec's
+topics (JSON through ``json.loads``, ROS 2 through mcap-ros2-support); ``ingest`` is
+:func:`slearn.serialize.read_episodes` (read, decode, extract the spec's fields, symbolize,
+build the steps); ``learn`` is :func:`slearn.learn.learn_files` (fit, read, learn, save the
+library; kernels warm). Logs: a JSON pointer log (``--trials`` trials, written in code) and
+the PR2 ROS 2 log repeated ``--copies`` times (its JointState and Odometry channels).
+
+Memory (``--rss``): peak RSS of ``slearn learn`` in a fresh process on pointer logs of
+``--rss-messages`` messages and a tenth of that (in chunks of 20,000 trials), one whose
+chunks all start at log time 0, and one whose messages are all in a single chunk.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
+from mcap.decoder import DecoderFactory
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from slearn.mcap_read import iter_messages
-from slearn.serialize import read_episodes
-from slearn.spec import Spec, pointer_spec
-from slearn.vocabulary import Vocabulary
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot"
+from ingest_logs import write_pointer_log  # noqa: E402
+from slearn.learn import learn_files  # noqa: E402
+from slearn.serialize import read_episodes  # noqa: E402
+from slearn.spec import Spec, pointer_spec  # noqa: E402
+from slearn.vocabulary import Vocabulary  # noqa: E402
+
+SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents[1:]
+               if (p / "shared" / "data" / "mcap").is_dir()), Path("shared"))  # ../shared, or above
+PR2 = SHARED / "robot" / "ros2_cdr" / "pr2_pr1012_sensors_ros2.mcap"
 PR2_SPEC = {"mode": "message", "channel": [
     {"topic": "/joint_states", "field": "position[name=laser_tilt_mount_joint]",
      "role": "observation", "range": [-0.7, 1.1], "count": 12},
@@ -35,7 +53,14 @@ PR2_SPEC = {"mode": "message", "channel": [
      "role": "observation", "width": 0.01}]}
 
 
-def best_of(fn, runs: int = 3) -> tuple[float, object]:
+class JsonDecoderFactory(DecoderFactory):
+    """mcap has no JSON decoder of its own: ``json.loads`` for ``json`` channels."""
+
+    def decoder_for(self, message_encoding, schema):
+        return json.loads if message_encoding == "json" else None
+
+
+def best_of(fn, runs: int) -> tuple[float, object]:
     best, result = float("inf"), None
     for _ in range(runs):
         start = time.perf_counter()
@@ -44,33 +69,10 @@ def best_of(fn, runs: int = 3) -> tuple[float, object]:
     return best, result
 
 
-def write_json_log(path: Path, trials: int) -> None:
-    """A pointer-like JSON log: command, position and angle channels, 3 messages per trial."""
-    with open(path, "wb") as f:
-        writer = Writer(f, compression=CompressionType.ZSTD)
-        writer.start()
-        schema = writer.register_schema("Thing", "jsonschema", b"{}")
-        ids = [writer.register_channel(t, "json", schema)
-               for t in ("/pointer/command", "/pointer/position", "/pointer/angle")]
-        writer.add_message(ids[1], log_time=0, publish_time=0, data=b'{"position": 1}')
-        for i in range(trials):
-            t = i * 100_000_000
-            writer.add_message(ids[0], log_time=t, publish_time=t,
-                               data=json.dumps({"command": "LR"[i % 3 % 2]}).encode())
-            writer.add_message(ids[1], log_time=t + 50_000_000, publish_time=t,
-                               data=json.dumps({"position": i % 36 + 1}).encode())
-            writer.add_message(ids[2], log_time=t + 50_000_000, publish_time=t,
-                               data=json.dumps({"angle_deg": i * 0.37 % 360}).encode())
-        writer.finish()
-
-
-def mcap_raw(path: Path) -> int:
+def mcap_decoded(path: Path, topics: list[str], factory) -> int:
     with open(path, "rb") as f:
-        return sum(1 for _ in make_reader(f).iter_messages())
-
-
-def slearn_raw(path: Path) -> int:
-    return sum(1 for _ in iter_messages(path))
+        reader = make_reader(f, decoder_factories=[factory])
+        return sum(1 for _ in reader.iter_decoded_messages(topics=topics))
 
 
 def slearn_ingest(path: Path, spec: Spec) -> tuple[int, int]:
@@ -78,30 +80,98 @@ def slearn_ingest(path: Path, spec: Spec) -> tuple[int, int]:
     return report.n_messages, episode.n_events
 
 
-def bench(name: str, path: Path, spec: Spec) -> None:
-    t_mcap, n_mcap = best_of(lambda: mcap_raw(path))
-    t_raw, n_raw = best_of(lambda: slearn_raw(path))
-    t_ingest, (n_read, n_events) = best_of(lambda: slearn_ingest(path, spec))
-    print(f"{name}  ({path.stat().st_size / 1e6:.1f} MB, {n_mcap} messages)")
-    print(f"  mcap make_reader().iter_messages   {n_mcap / t_mcap:>12,.0f} msg/s")
-    print(f"  slearn iter_messages (raw)         {n_raw / t_raw:>12,.0f} msg/s")
-    print(f"  slearn read_episodes (decode+spec) {n_read / t_ingest:>12,.0f} msg/s  "
-          f"{n_events / t_ingest:>12,.0f} events/s  ({n_read} messages of the spec's topics, "
-          f"{n_events} events)")
+def slearn_learn(path: Path, spec: Spec, out: Path) -> int:
+    return learn_files([path], out, spec=spec, overwrite=True).n_events
+
+
+def write_repeated(source: Path, path: Path, copies: int) -> None:
+    """``source`` written ``copies`` times in a row (log times shifted past the previous copy)."""
+    with open(source, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        messages = [(channel, m) for _, channel, m in reader.iter_messages()]
+    span = summary.statistics.message_end_time - summary.statistics.message_start_time + 1
+    with open(path, "wb") as f:
+        writer = Writer(f, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="slearn-bench")
+        ids = {}
+        for sid, schema in summary.schemas.items():
+            ids[("s", sid)] = writer.register_schema(schema.name, schema.encoding, schema.data)
+        for cid, channel in summary.channels.items():
+            ids[cid] = writer.register_channel(channel.topic, channel.message_encoding,
+                                               ids[("s", channel.schema_id)], channel.metadata)
+        for k in range(copies):
+            for channel, m in messages:
+                writer.add_message(ids[channel.id], m.log_time + k * span, m.data,
+                                   m.publish_time + k * span, m.sequence)
+        writer.finish()
+
+
+def bench(name: str, path: Path, spec: Spec, factory, runs: int, folder: Path) -> None:
+    topics = spec.topics()
+    t_anchor, n_anchor = best_of(lambda: mcap_decoded(path, topics, factory), runs)
+    t_ingest, (n_read, n_events) = best_of(lambda: slearn_ingest(path, spec), runs)
+    slearn_learn(path, spec, folder / "warm.parquet")  # compile the kernels first
+    t_learn, _ = best_of(lambda: slearn_learn(path, spec, folder / "lib.parquet"), runs)
+    anchor = n_anchor / t_anchor
+    print(f"{name}: {path.stat().st_size / 1e6:.1f} MB, {n_read:,} messages of the spec's "
+          f"topics, {n_events:,} events")
+    print(f"  mcap iter_decoded_messages (anchor)  {anchor:>10,.0f} msg/s  1.00x")
+    for label, seconds in (("slearn ingest (read_episodes)", t_ingest),
+                           ("slearn learn (learn_files)", t_learn)):
+        rate = n_read / seconds
+        print(f"  {label:<36} {rate:>10,.0f} msg/s  {rate / anchor:.2f}x")
+    sys.stdout.flush()
+
+
+def peak_rss_mb(args: list[str]) -> tuple[float, float, int]:
+    """Peak RSS (MB) and seconds of a child process, and its exit code."""
+    start = time.perf_counter()
+    child = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    child.stderr.close()
+    return usage.ru_maxrss / 1024, time.perf_counter() - start, os.waitstatus_to_exitcode(status)
+
+
+def rss(folder: Path, messages: int) -> None:
+    print(f"peak RSS of `slearn learn LOG -o lib.parquet` (fresh process):")
+    cases = [(messages // 10, "chunked"), (messages, "chunked"), (messages, "time0"),
+             (3_000_000, "one_chunk"), (messages, "one_chunk")]
+    for n, layout in cases:
+        log = folder / f"pointer_{layout}_{n}.mcap"
+        written = write_pointer_log(log, n // 2, layout)
+        mb, seconds, code = peak_rss_mb([sys.executable, "-m", "slearn", "learn", str(log), "-o",
+                                         str(folder / "rss.parquet"), "--force"])
+        print(f"  {written:>12,} messages, {layout:<9} ({log.stat().st_size / 1e6:6.1f} MB): "
+              f"{mb:7.0f} MB peak RSS, {seconds:6.1f} s, exit {code}")
+        sys.stdout.flush()
+        log.unlink()
 
 
 def main() -> None:
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "pointer_like.mcap"
-        write_json_log(path, 100_000)
-        bench("JSON log (pointer-like, built in code)", path, pointer_spec())
-    pr2_spec = Spec.from_dict(PR2_SPEC)
-    for name, rel in (("ROS 2 CDR PR2 log", "ros2_cdr/pr2_pr1012_sensors_ros2.mcap"),
-                      ("ROS 1 PR2 log", "ros1/pr2_pr1012_sensors_ros1.mcap")):
-        if (SHARED / rel).exists():
-            bench(name, SHARED / rel, pr2_spec)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=100_000)
+    parser.add_argument("--copies", type=int, default=50)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--rss", action="store_true", help="measure peak RSS too")
+    parser.add_argument("--rss-messages", type=int, default=10_000_000)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        log = folder / "pointer.mcap"
+        write_pointer_log(log, args.trials)
+        bench("JSON pointer log", log, pointer_spec(), JsonDecoderFactory(), args.runs, folder)
+        if PR2.exists():
+            from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
+
+            log = folder / "pr2_x.mcap"
+            write_repeated(PR2, log, args.copies)
+            bench(f"ROS 2 PR2 log x{args.copies}", log, Spec.from_dict(PR2_SPEC),
+                  Ros2DecoderFactory(), args.runs, folder)
         else:
-            print(f"{name}: {SHARED / rel} not available, skipped")
+            print(f"ROS 2 PR2 log: {PR2} not available, skipped")
+        if args.rss:
+            rss(folder, args.rss_messages)
 
 
 if __name__ == "__main__":

@@ -35,13 +35,15 @@ from __future__ import annotations
 
 import heapq
 import os
+from array import array
 import stat
 import struct
 import warnings
 import zlib
 from dataclasses import dataclass, field
-from operator import itemgetter
 from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
+
+import numpy as np
 
 from slearn.errors import InputError, TruncatedLogWarning
 
@@ -70,6 +72,8 @@ _BLOCK_MESSAGES = 4096  # messages outside chunks are merged in blocks of this m
 _BLOCK_BYTES = 4 << 20
 _SMALL_RECORD = 1 << 24  # schema/channel/header records larger than this are corrupt
 _MESSAGE_BYTES = 256  # memory of one message's index entry in an opened block
+_COLUMNS = 6  # log time, publish time, sequence, channel id, payload start and end
+_SOFT_BYTES = 32 << 20  # above this, open blocks that wait for others are closed
 _ZERO_SCAN = 1 << 20
 
 MAX_CHUNK_ENV = "SLEARN_MAX_CHUNK_MB"
@@ -334,12 +338,22 @@ class McapLog:
 
         ``self.report`` counts what was yielded and records where the file broke.
         """
-        wanted = None if topics is None else frozenset(topics)
-        self.report.filtered = wanted is not None
-        merge = _Merge(self._file, self._layout, self.report, wanted, on_progress, self.max_chunk_bytes)
-        for message in merge:
+        for message in self._merge(topics, on_progress):
             self.report.n_messages += 1
             yield message
+
+    def iter_batches(self, topics: Iterable[str] | None = None,
+                     on_progress: Callable[[int, int], None] | None = None) -> Iterator[MessageBatch]:
+        """The messages of :meth:`iter_messages` as :class:`MessageBatch` es (a chunk at a
+        time when chunks do not overlap in time), without a Python object per message."""
+        for batch in self._merge(topics, on_progress).batches():
+            self.report.n_messages += len(batch)
+            yield batch
+
+    def _merge(self, topics: Iterable[str] | None, on_progress) -> "_Merge":
+        wanted = None if topics is None else frozenset(topics)
+        self.report.filtered = wanted is not None
+        return _Merge(self._file, self._layout, self.report, wanted, on_progress, self.max_chunk_bytes)
 
 
 def max_chunk_bytes_setting() -> int:
@@ -650,19 +664,21 @@ def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
 
 
 def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
-                    room: int) -> list[tuple]:
-    """Messages of a run of records as ``(log_time, publish_time, sequence, channel_id,
-    start, end)``, ``buf[start:end]`` being the payload; schemas and channels are registered.
+                    room: int) -> np.ndarray:
+    """Messages of a run of records as rows ``(log_time, publish_time, sequence,
+    channel_id, start, end)`` (``uint64``, sorted by log time, ties in file order),
+    ``buf[start:end]`` being the payload; schemas and channels are registered.
 
     Raises:
         ValueError: a record is cut or made of zero bytes (a damaged block).
         _TooLarge: holding the messages would take more than ``room`` bytes.
     """
-    out: list[tuple] = []
+    out = array("Q")
     pos, end, n_records = 0, len(buf), 0
     channels = layout.channels
+    head, message = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
     while pos + 9 <= end:
-        op, length = _RECORD_HEAD.unpack_from(buf, pos)
+        op, length = head(buf, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > end:
             raise ValueError(f"record at +{pos} runs past the end of its block")
@@ -670,21 +686,21 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         if n_records % _BLOCK_MESSAGES == 0:  # every record counts: floods of tiny ones stop early
             check_room(end, n_records, room)
         if op == _OP_MESSAGE:
-            cid, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, body)
+            cid, seq, log_time, publish_time = message(buf, body)
             if log_time > _LAST_TIME_NS:  # times are int64 downstream; no clock reads 2262 or later
                 raise ValueError(f"message at +{pos} has a log time of {log_time} ns, past the year 2262")
             channel = channels.get(cid)
             if wanted is None or channel is None or channel.topic in wanted:
-                out.append((log_time, publish_time, seq, cid, body + 22, nxt))
+                out.extend((log_time, publish_time, seq, cid, min(body + 22, nxt), nxt))
         elif op in (_OP_SCHEMA, _OP_CHANNEL):
             _register_record(op, buf, body, nxt, layout)
             _resolve_channels(layout)
         elif op == _OP_INVALID:  # zero bytes are never walked record by record
             raise ValueError(f"zero bytes instead of a record at +{pos}")
         pos = nxt
-    check_room(end, len(out), room)
-    out.sort(key=itemgetter(0))  # stable: ties keep file order
-    return out
+    check_room(end, len(out) // _COLUMNS, room)
+    rows = np.frombuffer(out, np.uint64).reshape(-1, _COLUMNS)
+    return rows[np.argsort(rows[:, 0], kind="stable")]  # stable: ties keep file order
 
 
 def block_cost(n_bytes: int, n_records: int) -> int:
@@ -703,55 +719,126 @@ def check_room(n_bytes: int, n_records: int, room: int) -> None:
         raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_records:,} records")
 
 
-class _Opened(NamedTuple):
-    """An opened block: its sorted messages, the bytes they point into, its memory."""
+_NO_ROWS = np.zeros((0, _COLUMNS), np.uint64)
 
-    messages: list[tuple]
+
+class _Opened(NamedTuple):
+    """An opened block: its messages as rows (see :func:`_parse_messages`), their log times
+    (contiguous, for searching), the bytes they point into, its memory."""
+
+    rows: np.ndarray
+    times: np.ndarray
     buf: bytes
     cost: int
+
+
+class MessageBatch(NamedTuple):
+    """Consecutive messages of a log (in log-time order) as arrays over one buffer.
+
+    ``buf[starts[k]:ends[k]]`` is the payload of message ``k``, on channel
+    ``channels[channel_ids[k]]``, logged at ``log_times[k]`` (``uint64``); ``offsets`` are
+    their byte offsets as :attr:`RawMessage.offset` gives them.
+    """
+
+    buf: bytes
+    channel_ids: np.ndarray
+    log_times: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    offsets: np.ndarray
+    channels: dict[int, ChannelInfo]
+
+    def __len__(self) -> int:
+        return len(self.log_times)
+
+    def payloads(self) -> list[bytes]:
+        """Every payload, in order."""
+        buf = self.buf
+        return [buf[a:b] for a, b in zip(self.starts.tolist(), self.ends.tolist())]
+
+
+def batch_of(messages: list[RawMessage]) -> MessageBatch:
+    """A batch of raw messages (payloads copied into one buffer)."""
+    sizes = np.fromiter((len(m.data) for m in messages), np.int64, len(messages))
+    ends = np.cumsum(sizes)
+    channels = {m.channel.id: m.channel for m in messages}
+    return MessageBatch(b"".join(m.data for m in messages),
+                        np.fromiter((m.channel.id for m in messages), np.int64, len(messages)),
+                        np.fromiter((m.log_time_ns for m in messages), np.uint64, len(messages)),
+                        ends - sizes, ends,
+                        np.fromiter((m.offset for m in messages), np.int64, len(messages)), channels)
+
+
+def iter_batches_of(messages: Iterator[RawMessage], size: int = 4096) -> Iterator[MessageBatch]:
+    """Group a message stream into batches of at most ``size`` messages."""
+    pending: list[RawMessage] = []
+    for message in messages:
+        pending.append(message)
+        if len(pending) >= size:
+            yield batch_of(pending)
+            pending = []
+    if pending:
+        yield batch_of(pending)
 
 
 class _Merge:
     """Pass 2: k-way merge of blocks by ``(log_time, block index, index in block)``.
 
-    Opened blocks stay in memory until their last message is yielded; together they may
-    take at most ``limit`` bytes (decompressed records plus the message index). A block
-    that would exceed it is skipped and reported (raise the limit to read it).
+    It yields runs: consecutive messages of one block that come before every message of
+    the other blocks (a whole chunk, when chunks do not overlap in time). Opened blocks
+    stay in memory until their last message is yielded; together they take at most
+    ``limit`` bytes (decompressed records plus the message index). Above ``soft`` bytes
+    (or to make room for a block), a block whose next message comes after the last
+    message of another open block is closed, and opened again when its turn comes:
+    chunks that all start at log time 0 are read one at a time, each twice. A block that
+    would still exceed ``limit`` is skipped and reported (raise the limit to read it).
     """
 
     def __init__(self, f: BinaryIO, layout: _Layout, report: ReadReport,
                  wanted: frozenset[str] | None, on_progress, limit: int) -> None:
         self.f, self.layout, self.report, self.wanted = f, layout, report, wanted
         self.on_progress, self.limit = on_progress, limit
+        self.soft = min(limit, _SOFT_BYTES)
         self.order = sorted(range(len(layout.blocks)), key=lambda i: (layout.blocks[i].min_time, i))
         self.opened = [False] * len(layout.blocks)
         self.harvested_upto = 0  # blocks before this index are opened or harvested
         self.bytes_read = 0
         self.open_bytes = 0
+        self.heap: list[list] = []  # [next log time, block index, position, _Opened or None]
 
-    def _parse(self, i: int) -> _Opened:
+    def _parse(self, i: int, count: bool = True) -> _Opened:
         block = self.layout.blocks[i]
-        room = self.limit - self.open_bytes
         try:
-            if block.is_chunk:
-                buf = _chunk_records(self.f, block, room)
-            else:
-                self.f.seek(block.offset)
-                buf = self.f.read(block.end - block.offset)
-            messages = _parse_messages(buf, self.layout, self.wanted, room)
+            rows, buf = self._read(block)
         except _TooLarge as err:
             held = f" with {self.open_bytes / 2**20:.1f} MiB held by chunks overlapping in time" \
                 if self.open_bytes else ""
             self._skip(block, f"{err}: over the {self.limit / 2**20:g} MiB of chunk data read at "
                               f"once{held}; raise {MAX_CHUNK_ENV} to read it")
-            buf, messages = b"", []
+            rows, buf = _NO_ROWS, b""
         except (ValueError, struct.error) as err:
             self._skip(block, str(err))
-            buf, messages = b"", []
-        self.bytes_read += block.end - block.offset
-        if self.on_progress is not None:
-            self.on_progress(self.bytes_read, self.report.size_bytes)
-        return _Opened(messages, buf, block_cost(len(buf), len(messages)))
+            rows, buf = _NO_ROWS, b""
+        if count:
+            self.bytes_read += block.end - block.offset
+            if self.on_progress is not None:
+                self.on_progress(self.bytes_read, self.report.size_bytes)
+        return _Opened(rows, np.ascontiguousarray(rows[:, 0]), buf, block_cost(len(buf), len(rows)))
+
+    def _read(self, block: _Block) -> tuple[np.ndarray, bytes]:
+        """Rows and buffer of a block; closes other blocks when it would not fit beside them."""
+        while True:
+            room = self.limit - self.open_bytes
+            try:
+                if block.is_chunk:
+                    buf = _chunk_records(self.f, block, room)
+                else:
+                    self.f.seek(block.offset)
+                    buf = self.f.read(block.end - block.offset)
+                return _parse_messages(buf, self.layout, self.wanted, room), buf
+            except _TooLarge:
+                if not self._close_one():
+                    raise
 
     def _skip(self, block: _Block, reason: str) -> None:
         where = "chunk" if block.is_chunk else "records"
@@ -761,7 +848,8 @@ class _Merge:
     def _open(self, i: int) -> _Opened:
         self.opened[i] = True
         opened = self._parse(i)
-        if any(m[3] not in self.layout.channels for m in opened.messages):
+        channels = self.layout.channels
+        if any(int(c) not in channels for c in np.unique(opened.rows[:, 3])):
             self._harvest_before(i)
         return opened
 
@@ -773,35 +861,93 @@ class _Merge:
         """
         for j in range(self.harvested_upto, i):
             if not self.opened[j]:
-                self._parse(j)
+                self._parse(j, count=False)
         self.harvested_upto = max(self.harvested_upto, i)
 
-    def __iter__(self) -> Iterator[RawMessage]:
-        blocks, channels = self.layout.blocks, self.layout.channels
-        heap: list[tuple] = []
+    def _push(self, i: int, j: int, opened: _Opened) -> None:
+        if j < len(opened.times):
+            self.open_bytes += opened.cost
+            heapq.heappush(self.heap, [int(opened.times[j]), i, j, opened])
+            while self.open_bytes > self.soft and self._close_one():
+                pass
+
+    def _close_one(self) -> bool:
+        """Close the open block whose next message comes last, if it waits for another open
+        block to finish (so it is opened again at most once per block finished: no
+        thrashing); whether one was closed."""
+        open_entries = [e for e in self.heap if e[3] is not None]
+        if len(open_entries) < 2:
+            return False
+        victim = max(open_entries, key=lambda e: (e[0], e[1]))
+        if victim[0] <= min(int(e[3].times[-1]) for e in open_entries if e is not victim):
+            return False
+        self.open_bytes -= victim[3].cost
+        victim[3] = None
+        return True
+
+    def _reopen(self, entry: list) -> None:
+        """Open a closed block again (the same rows: parsing is deterministic)."""
+        opened = self._parse(entry[1], count=False)
+        entry[3] = opened
+        self.open_bytes += opened.cost
+
+    def runs(self) -> Iterator[tuple[int, _Opened, int, int]]:
+        """``(block index, opened block, first, stop)``: rows ``first:stop`` come next."""
+        blocks, heap, order = self.layout.blocks, self.heap, self.order
         k = 0
         while True:
-            while k < len(self.order) and (not heap or blocks[self.order[k]].min_time <= heap[0][0]):
-                i = self.order[k]
-                opened = self._open(i)
-                if opened.messages:
-                    self.open_bytes += opened.cost
-                    heapq.heappush(heap, (opened.messages[0][0], i, 0, opened))
+            while k < len(order) and (not heap or blocks[order[k]].min_time <= heap[0][0]):
+                self._push(order[k], 0, self._open(order[k]))
                 k += 1
             if not heap:
                 return
-            _, i, j, opened = heap[0]
-            log_time, publish_time, seq, cid, start, end = opened.messages[j]
-            if j + 1 < len(opened.messages):
-                heapq.heapreplace(heap, (opened.messages[j + 1][0], i, j + 1, opened))
-            else:
-                heapq.heappop(heap)
-                self.open_bytes -= opened.cost
-            channel = channels.get(cid)
-            block = blocks[i]
-            if channel is None:
-                self.report.note_break(block.offset, f"message on undefined channel id {cid}")
-                continue
-            if self.wanted is None or channel.topic in self.wanted:
+            entry = heap[0]
+            if entry[3] is None:
+                self._reopen(entry)
+            _, i, j, opened = heapq.heappop(heap)
+            times = opened.times
+            stop = len(times)
+            if heap:
+                stop = int(np.searchsorted(times, heap[0][0], "right" if i < heap[0][1] else "left"))
+            if k < len(order):
+                stop = min(stop, int(np.searchsorted(times, blocks[order[k]].min_time, "left")))
+            stop = max(stop, j + 1)
+            self.open_bytes -= opened.cost
+            yield i, opened, j, stop
+            self._push(i, stop, opened)
+
+    def _selected(self, i: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rows of a run on known channels of the wanted topics, and their channel ids;
+        messages on undefined channels are reported."""
+        channels = self.layout.channels
+        cids = rows[:, 3].astype(np.int64)
+        ids = cids.tolist()
+        keep = np.fromiter((c in channels for c in ids), bool, len(ids))
+        if not keep.all():
+            bad = int(cids[~keep][0])
+            self.report.note_break(self.layout.blocks[i].offset, f"message on undefined channel id {bad}")
+        if self.wanted is not None:
+            keep &= np.fromiter((c not in channels or channels[c].topic in self.wanted for c in ids),
+                                bool, len(ids))
+        return (rows, cids) if keep.all() else (rows[keep], cids[keep])
+
+    def batches(self) -> Iterator[MessageBatch]:
+        """The runs as :class:`MessageBatch` es."""
+        for i, opened, j, stop in self.runs():
+            rows, cids = self._selected(i, opened.rows[j:stop])
+            if len(rows):
+                block = self.layout.blocks[i]
+                starts, ends = rows[:, 4].astype(np.int64), rows[:, 5].astype(np.int64)
+                offsets = np.full(len(rows), block.offset, np.int64) if block.is_chunk \
+                    else block.offset + starts - 31
+                yield MessageBatch(opened.buf, cids, rows[:, 0], starts, ends, offsets,
+                                   self.layout.channels)
+
+    def __iter__(self) -> Iterator[RawMessage]:
+        channels = self.layout.channels
+        for i, opened, j, stop in self.runs():
+            rows, _ = self._selected(i, opened.rows[j:stop])
+            block, buf = self.layout.blocks[i], opened.buf
+            for log_time, publish, seq, cid, start, end in rows.tolist():
                 offset = block.offset if block.is_chunk else block.offset + start - 31
-                yield RawMessage(channel, log_time, publish_time, seq, opened.buf[start:end], offset)
+                yield RawMessage(channels[cid], log_time, publish, seq, buf[start:end], offset)
