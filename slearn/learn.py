@@ -34,7 +34,7 @@ from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.library_header import MAX_TIME_UNIX
 from slearn.literal import LiteralLibrary
 from slearn.mcap_read import ReadReport
-from slearn.serialize import fit_spec, read_episodes
+from slearn.serialize import fit_spec, read_episodes, read_pieces
 from slearn.slicing import TimeSlice
 from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
 from slearn.storage import load_library, save_library
@@ -245,16 +245,41 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
 def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
                     window: TimeSlice | None, reader: Callable = read_episodes) -> None:
-    for path, episode, report in reader(paths, job.spec, job.vocabulary, progress, window):
-        job.library.learn(episode)
+    if reader is read_episodes:  # read here, in pieces
+        pieces = read_pieces(paths, job.spec, job.vocabulary, progress, window)
+    else:  # whole episodes from another reader (Ray)
+        pieces = ((name, episode, report, True, True)
+                  for name, episode, report in reader(paths, job.spec, job.vocabulary, progress, window))
+    if isinstance(job.library, LiteralLibrary):  # its parse takes whole episodes
+        pieces = ((name, episode, report, True, True)
+                  for name, episode, report in _whole(pieces))
+    for path, piece, report, first, last in pieces:
+        if isinstance(job.library, LiteralLibrary):
+            job.library.learn(piece)
+        else:
+            job.library.learn(piece, new_episode=first)
+        result.n_steps += len(piece)
+        result.n_events += piece.n_events
+        if not last:
+            continue
         result.n_episodes += 1
-        result.n_steps += len(episode)
-        result.n_events += episode.n_events
         result.n_patterns = len(job.library)
         if report.truncated:
             result.truncated.append(report)
         if on_episode is not None:
             on_episode(result, path)
+
+
+def _whole(pieces):
+    """Pieces joined back into whole episodes."""
+    from slearn.serialize import _joined
+
+    parts = []
+    for name, piece, report, _, last in pieces:
+        parts.append(piece)
+        if last:
+            yield name, _joined(parts), report
+            parts = []
 
 
 def build_provenance(paths: list[str], previous: dict | None = None,

@@ -330,6 +330,14 @@ class _StepBuilder:
                        np.frombuffer(self.offsets, dtype=np.int64).copy(),
                        np.frombuffer(self.n_actions, dtype=np.int32).copy())
 
+    def take(self) -> Episode:
+        """The complete steps added so far, which leave the builder (tick mode, whose
+        steps are complete when added)."""
+        episode = self.build()
+        self.symbols, self.offsets, self.n_actions = array("i"), array("q", [0]), array("i")
+        self.times = array("q")
+        return episode
+
     def step_times(self) -> np.ndarray:
         """Log time (ns) of each step built so far."""
         return np.frombuffer(self.times, dtype=np.int64).copy()
@@ -491,26 +499,55 @@ def read_episodes(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Vo
         ``TruncatedLogWarning`` is also issued).
 
     Values outside an entry's ``range`` give one :class:`~slearn.errors.DataWarning` per
-    entry at the end (see the module docstring).
+    entry at the end (see the module docstring). Each episode is held whole:
+    :func:`read_pieces` streams them in bounded memory.
 
     Raises:
         SpecError: the spec does not fit a log (names the file, entry and field).
         InputError: a file cannot be read as a log.
     """
+    parts: list[Episode] = []
+    for name, piece, report, _, last in read_pieces(paths, spec, vocabulary, progress, window):
+        parts.append(piece)
+        if last:
+            yield name, _joined(parts), report
+            parts = []
+
+
+def _joined(parts: list[Episode]) -> Episode:
+    if len(parts) == 1:
+        return parts[0]
+    sizes = np.concatenate([np.diff(p.step_offsets) for p in parts])
+    return Episode(np.concatenate([p.symbols for p in parts]),
+                   np.concatenate(([0], np.cumsum(sizes))).astype(np.int64),
+                   np.concatenate([p.n_actions for p in parts]))
+
+
+def read_pieces(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Vocabulary,
+                progress: bool = False, window: TimeSlice | dict[str, TimeSlice] | None = None
+                ) -> Iterator[tuple[str, Episode, ReadReport, bool, bool]]:
+    """:func:`read_episodes` in bounded memory: ``(name, piece, report, first, last)``, each
+    episode as consecutive pieces of complete steps (``first`` and ``last`` mark its ends;
+    the report is the log's on the last piece of its last episode). Learning the pieces
+    in order, each after the previous one of its episode, is learning the episode."""
     if not spec.fitted:
         raise SpecError(f"{spec.source}: quantile bins are not fitted: fit them on the training "
                         f"logs first (fit_spec)")
+    from slearn.ingest import iter_pieces
+
     prepare_vocabulary(spec, vocabulary)
     ranges = RangeCounts()
     for path in paths:
         path = os.fspath(path)
         report = ReadReport(path)
         log_window = window.get(path) if isinstance(window, dict) else window
-        for name, episode, _, last in _log_episodes(path, spec, vocabulary, report, progress,
-                                                    log_window, ranges):
-            if last:
-                _warn_if_truncated(report)
-            yield name, episode, report if last else ReadReport(path)
+        pending = None
+        for piece in iter_pieces(path, spec, vocabulary, report, progress, log_window, ranges):
+            if pending is not None:
+                yield pending.name, pending.episode, ReadReport(path), pending.first, pending.last
+            pending = piece
+        _warn_if_truncated(report)
+        yield pending.name, pending.episode, report, pending.first, pending.last
     for message in ranges.messages(spec):
         warnings.warn(DataWarning(message), stacklevel=2)
 

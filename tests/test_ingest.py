@@ -1,0 +1,190 @@
+"""Streaming ingest: the same episodes, vocabulary, warnings and library as the per-message path."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.writer import CompressionType, Writer
+
+import slearn.ingest as ingest
+import slearn.learn as learn_module
+from slearn.learn import learn_files
+from slearn.mcap_read import ReadReport
+from slearn.serialize import RangeCounts, _log_episodes, prepare_vocabulary, read_episodes
+from slearn.slicing import TimeBound, TimeSlice
+from slearn.spec import Spec, pointer_spec
+from slearn.vocabulary import Vocabulary
+
+SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
+               if (p / "shared" / "data" / "mcap").is_dir()), Path("/nonexistent"))
+
+
+def write_raw(path, messages, chunk_size=600):
+    """``(topic, log_time, payload bytes)`` as JSON channels (markers on /slearn/episode)."""
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="tests")
+        schema = writer.register_schema("Thing", "jsonschema", b"{}")
+        channels = {}
+        for topic, log_time, data in messages:
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "json", schema)
+            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time, data=data)
+        writer.finish()
+    return Path(path)
+
+
+def busy_messages(n, seed, markers=False):
+    """Several topics at shared and distinct times, odd values, bad payloads, markers."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        t = int(i // 3) * 1000 + int(rng.integers(0, 2)) * 500
+        out.append(("/a", t, json.dumps({"c": "LR"[int(rng.integers(0, 2))], "k": [1, 2]}).encode()))
+        x = float(rng.normal(0, 2))
+        value = [x, None, "text", True, float("nan"), 10 ** 30, int(x)][int(rng.integers(0, 7))] \
+            if rng.random() < 0.3 else x
+        out.append(("/s", t + int(rng.integers(0, 2)) * 500, json.dumps({"v": value, "w": [x, -x]}).encode()))
+        if rng.random() < 0.05:
+            out.append(("/s", t + 500, b'{"v": 1,'))  # does not decode
+        out.append(("/c", t, json.dumps({"m": int(rng.integers(0, 3))}).encode()))
+        if markers and rng.random() < 0.02:
+            out.append(("/slearn/episode", t, b'{"name": "x"}'))
+    return out
+
+
+SPEC = {"mode": "message", "channel": [
+    {"topic": "/a", "field": "c", "role": "action"},
+    {"topic": "/s", "field": "v", "role": "observation", "width": 0.5},
+    {"topic": "/s", "field": "w[1]", "role": "observation", "range": [-2, 2], "count": 7},
+    {"topic": "/s", "field": "w[0]", "role": "observation", "range": [-3, 3], "count": 5, "wrap": True},
+    {"topic": "/a", "field": "k[5]", "role": "action"},
+    {"topic": "/c", "field": "m", "role": "observation", "mode": "change"},
+    {"topic": "/s", "field": "v", "role": "observation", "name": "vcat"}]}
+
+
+def old_read(paths, spec, window=None):
+    """The per-message path: whole episodes, the vocabulary and the warnings."""
+    vocabulary = prepare_vocabulary(spec, Vocabulary())
+    ranges, out = RangeCounts(), []
+    for path in paths:
+        for name, episode, _, _ in _log_episodes(str(path), spec, vocabulary, ReadReport(str(path)),
+                                                 False, window, ranges):
+            out.append((name, episode))
+    return out, vocabulary, ranges.messages(spec)
+
+
+def new_read(paths, spec, window=None):
+    vocabulary = Vocabulary()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = [(name, episode) for name, episode, _ in read_episodes(paths, spec, vocabulary,
+                                                                      window=window)]
+    return out, vocabulary, [str(w.message) for w in caught if "outside range" in str(w.message)]
+
+
+def assert_same(old, new):
+    (old_eps, old_vocab, old_warn), (new_eps, new_vocab, new_warn) = old, new
+    assert [n for n, _ in old_eps] == [n for n, _ in new_eps]
+    for (_, a), (_, b) in zip(old_eps, new_eps):
+        assert np.array_equal(a.symbols, b.symbols)
+        assert np.array_equal(a.step_offsets, b.step_offsets)
+        assert np.array_equal(a.n_actions, b.n_actions)
+    assert list(old_vocab.items()) == list(new_vocab.items())
+    assert old_warn == new_warn
+
+
+@pytest.mark.parametrize("mode", ["message", "change", "tick"])
+@pytest.mark.parametrize("piece", [3, 1 << 18])
+def test_streaming_gives_the_per_message_episodes(tmp_path, monkeypatch, mode, piece):
+    monkeypatch.setattr(ingest, "PIECE_EVENTS", piece)
+    paths = [write_raw(tmp_path / "a.mcap", busy_messages(400, 1)),
+             write_raw(tmp_path / "b.mcap", busy_messages(300, 2, markers=True), chunk_size=300)]
+    data = dict(SPEC, mode=mode, **({"tick_ms": 0.0007} if mode == "tick" else {}))
+    if mode == "tick":  # every entry is sampled
+        data["channel"] = [{k: v for k, v in e.items() if k != "mode"} for e in SPEC["channel"]]
+    spec = Spec.from_dict(data)
+    old = old_read(paths, spec)
+    assert sum(e.n_events for _, e in old[0]) > 500 and len(old[0]) > 3
+    assert_same(old, new_read(paths, spec))
+
+
+def test_streaming_keeps_the_window(tmp_path):
+    path = write_raw(tmp_path / "a.mcap", busy_messages(400, 3))
+    window = TimeSlice(TimeBound(seconds=1.0e-4), TimeBound(seconds=3.0e-4))
+    spec = Spec.from_dict(SPEC)
+    assert_same(old_read([path], spec, window), new_read([path], spec, window))
+
+
+def test_learning_pieces_writes_the_library_of_whole_episodes(tmp_path, monkeypatch):
+    paths = [write_raw(tmp_path / "a.mcap", busy_messages(500, 4, markers=True))]
+    spec = Spec.from_dict(SPEC)
+    out = {}
+    for label, piece in (("pieces", 5), ("whole", None)):
+        if piece is None:
+            def whole(paths, spec, vocabulary, progress=False, window=None):
+                prepare_vocabulary(spec, vocabulary)
+                for path in paths:
+                    report = ReadReport(str(path))
+                    for name, episode, _, _ in _log_episodes(str(path), spec, vocabulary, report,
+                                                             False, window, None):
+                        yield name, episode, report, True, True
+            monkeypatch.setattr(learn_module, "read_pieces", whole)
+        else:
+            monkeypatch.setattr(ingest, "PIECE_EVENTS", piece)
+        for scoring in ("adaptive", "literal"):
+            target = tmp_path / f"{label}-{scoring}.parquet"
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                learn_files(paths, target, spec=spec, scoring=scoring, max_patterns=300)
+            out[label, scoring] = target.read_bytes()
+    assert out["pieces", "adaptive"] == out["whole", "adaptive"]
+    assert out["pieces", "literal"] == out["whole", "literal"]
+
+
+def test_pointer_pieces_are_complete_steps(tmp_path, monkeypatch):
+    monkeypatch.setattr(ingest, "PIECE_EVENTS", 10)
+    messages = [("/pointer/position", 0, b'{"position": 3}')]
+    for i in range(100):
+        messages += [("/pointer/command", i * 100, json.dumps({"command": "LR"[i % 2]}).encode()),
+                     ("/pointer/position", i * 100 + 50, json.dumps({"position": i % 36 + 1}).encode())]
+    path = write_raw(tmp_path / "p.mcap", messages)
+    from slearn.serialize import read_pieces
+
+    pieces = list(read_pieces([path], pointer_spec(), Vocabulary()))
+    assert len(pieces) > 5 and pieces[0][3] and pieces[-1][4]
+    assert sum(len(p[1]) for p in pieces) == 101
+    assert all(len(p[1]) and p[1].n_actions[0] == 1 for p in pieces[1:])
+
+
+ROBOT_SPECS = [
+    ("robot/ros2_cdr/pr2_pr1012_sensors_ros2.mcap", {"mode": "message", "channel": [
+        {"topic": "/joint_states", "field": "position[name=laser_tilt_mount_joint]",
+         "role": "observation", "range": [-0.7, 1.1], "count": 12},
+        {"topic": "/joint_states", "field": "velocity[name=laser_tilt_mount_joint]",
+         "role": "action", "edges": [-0.5, 0.5]},
+        {"topic": "/joint_states", "field": "position[3]", "role": "observation", "width": 0.05},
+        {"topic": "/base_odometry/odom", "field": "twist.twist.angular.z",
+         "role": "observation", "width": 0.01},
+        {"topic": "/base_odometry/odom", "field": "header.frame_id", "role": "observation"}]}),
+    ("robot/ros1/pr2_pr1012_sensors_ros1.mcap", {"mode": "message", "channel": [
+        {"topic": "/joint_states", "field": "position[name=laser_tilt_mount_joint]",
+         "role": "observation", "width": 0.05},
+        {"topic": "/joint_states", "field": "velocity[name=laser_tilt_mount_joint]",
+         "role": "action", "edges": [-0.5, 0.5]}]}),
+]
+
+
+@pytest.mark.parametrize("rel, spec", ROBOT_SPECS, ids=["ros2", "ros1"])
+def test_robot_logs_stream_as_they_read(rel, spec):
+    path = SHARED / rel
+    if not path.exists():
+        pytest.skip(f"../shared/data/mcap/{rel} is not available")
+    spec = Spec.from_dict(spec)
+    old = old_read([path], spec)
+    assert old[0][0][1].n_events > 100
+    assert_same(old, new_read([path], spec))
