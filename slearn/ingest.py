@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -32,6 +33,8 @@ from slearn.vocabulary import ACTION, Vocabulary
 
 PIECE_EVENTS = 1 << 18  # events of complete steps gathered before a piece leaves
 _NO_SYMBOL = -1
+_NO_BIN = np.iinfo(np.int64).min
+_UNSEEN = object()
 
 
 @dataclass
@@ -63,6 +66,63 @@ def _json(data: bytes) -> Any:
     return json.loads(data)  # what json.loads makes of it, error included
 
 
+_VALUE_START = np.zeros(256, bool)
+_VALUE_START[list(b'{["-0123456789tfnNI')] = True  # a JSON value starts with one of these
+_VALUE_END = np.zeros(256, bool)
+_VALUE_END[list(b'}]"0123456789elyN')] = True  # and ends with one of these
+
+
+def _json_all(payloads: list[bytes]) -> list | None:
+    """Every payload parsed as :func:`json.loads` parses it, by one parse of the JSON array
+    of them all; ``None`` when some payload needs a closer look (not ASCII, or the array
+    would not split where the payloads do).
+
+    The array ``[p1,p2,...]`` parses to the payloads' own values exactly when it has one
+    element per payload and every comma put between payloads lies at the array's top
+    level, outside strings (then each payload is one whole value; a value parses alike
+    alone or in an array). Both are checked, the second with numpy over the bytes.
+    """
+    if not payloads:
+        return []
+    joined = b",".join(payloads)
+    if not joined.isascii():
+        return None
+    sizes = np.fromiter(map(len, payloads), np.int64, len(payloads))
+    if not sizes.all():
+        return None
+    commas = np.cumsum(sizes + 1)[:-1] - 1  # where the commas put between payloads are
+    raw = np.frombuffer(joined, np.uint8)
+    starts = np.concatenate(([0], commas + 1))
+    if not (_VALUE_START[raw[starts]].all() and _VALUE_END[raw[starts + sizes - 1]].all()):
+        return None
+    if len(commas) and not _top_level(raw, commas):
+        return None
+    try:
+        values = json.loads(b"[" + joined + b"]")
+    except (ValueError, RecursionError):
+        return None
+    return values if len(values) == len(payloads) else None
+
+
+def _top_level(raw: np.ndarray, commas: np.ndarray) -> bool:
+    """Whether the bytes before each of ``commas`` close every string and bracket they open."""
+    index = np.arange(len(raw))
+    quote = raw == ord('"')
+    if quote.any():
+        not_slash = np.maximum.accumulate(np.where(raw != ord("\\"), index, -1))
+        at = np.flatnonzero(quote)
+        run = np.where(at > 0, at - 1 - not_slash[np.maximum(at - 1, 0)], 0)
+        quote[at[run % 2 == 1]] = False  # escaped quotes
+    in_string = (np.cumsum(quote) % 2).astype(bool) | quote
+    if in_string[commas].any():
+        return False
+    step = np.zeros(len(raw), np.int64)
+    step[(raw == ord("[")) | (raw == ord("{"))] = 1
+    step[(raw == ord("]")) | (raw == ord("}"))] = -1
+    step[in_string] = 0
+    return not np.cumsum(step)[commas].any()
+
+
 class _ChannelReader:
     """Field values of one channel's payloads, one list per spec entry of its topic."""
 
@@ -78,7 +138,8 @@ class _ChannelReader:
                 raise SpecError(f"{path}: the spec selects topic {channel.topic!r}, but {err}") from err
             if self.decoder is json.loads:
                 self.decoder = _json
-        self.getters = [_getter(e.path) for e in entries]
+        json_objects = self.plan is None and self.decoder is _json
+        self.getters = [_getter(e.path) if json_objects else _never for e in entries]
 
     def values(self, payloads: list[bytes], offsets: list[int], report: ReadReport) -> list[list]:
         """Per entry, the value of each payload (:data:`MISSING` when it has none or does
@@ -87,7 +148,9 @@ class _ChannelReader:
         if self.plan is not None:
             rows = [self._plan_row(data, offset, report) for data, offset in zip(payloads, offsets)]
             return [[row[i] if row is not None else MISSING for row in rows] for i in range(n)]
-        objs = [self._decode(data, offset, report) for data, offset in zip(payloads, offsets)]
+        objs = _json_all(payloads) if self.decoder is _json else None
+        if objs is None:
+            objs = [self._decode(data, offset, report) for data, offset in zip(payloads, offsets)]
         return [self._field(get, entry, objs) for get, entry in zip(self.getters, self.entries)]
 
     def _plan_row(self, data: bytes, offset: int, report: ReadReport):
@@ -109,36 +172,32 @@ class _ChannelReader:
         from slearn.serialize import _field_value
 
         try:
-            return [MISSING if obj is MISSING else get(obj) for obj in objs]
+            return get(objs)  # MISSING (undecodable) has no items: falls back below
         except (KeyError, TypeError, IndexError):
             return [MISSING if obj is MISSING else _field_value(obj, entry, self.path) for obj in objs]
 
 
-def _getter(path) -> Callable[[Any], Any]:
-    """A fast reader of a field path made of names only, on dicts (JSON); anything else
-    raises so that the caller falls back to :meth:`FieldPath.get`."""
+def _never(objs: list) -> list:
+    raise TypeError  # no fast reader: FieldPath.get reads every message
+
+
+def _getter(path) -> Callable[[list], list]:
+    """A fast reader of a field path made of names only over JSON objects (plain dicts,
+    lists, strings and numbers); any miss raises, and the caller falls back to
+    :meth:`FieldPath.get`, which says what is wrong."""
     names = [args[0] for kind, *args in path.steps if kind == "attr"]
     if len(names) != len(path.steps) or not names:
-        return lambda obj: (_ for _ in ()).throw(TypeError)
+        return _never
+    get = itemgetter(names[0])
     if len(names) == 1:
-        name = names[0]
+        return lambda objs: list(map(get, objs))
+    gets = [itemgetter(name) for name in names]
 
-        def get(obj: Any) -> Any:
-            value = obj[name] if type(obj) is dict else obj[None]  # noqa: E721 - dicts only
-            return _plain(value)
-        return get
-
-    def get_nested(obj: Any) -> Any:
-        for name in names:
-            obj = obj[name] if type(obj) is dict else obj[None]  # noqa: E721 - dicts only
-        return _plain(obj)
+    def get_nested(objs: list) -> list:
+        for get in gets:
+            objs = list(map(get, objs))
+        return objs
     return get_nested
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, (np.generic, np.ndarray)):
-        raise TypeError  # numpy values: FieldPath.get converts them
-    return value
 
 
 # --- symbols ------------------------------------------------------------------------------
@@ -157,32 +216,61 @@ class _Symbols:
         self.bounded = [isinstance(c.symbolizer, Bins) and c.symbolizer.range is not None
                         for c in spec.channels]
 
-    def symbols(self, entries: np.ndarray, values: list, first_position: int) -> np.ndarray:
+    def symbols(self, entries: np.ndarray, values: list) -> np.ndarray:
         """Symbol of each value (``-1`` when the value gives none)."""
         out = np.full(len(values), _NO_SYMBOL, np.int64)
         new: list[tuple[int, int, Any]] = []  # (position, entry, value) never seen
+        keyed = {}
         for index in np.unique(entries).tolist():
             where = np.flatnonzero(entries == index)
-            vals = [values[i] for i in where.tolist()]
-            keys = self._keys(index, vals)
-            known = self.known[index]
-            for i, key in zip(where.tolist(), keys):
-                if key is None:
-                    continue
-                try:
-                    symbol = known.get(key)
-                except TypeError:
-                    symbol = self._unhashable(index)
-                if symbol is None:
-                    new.append((i, index, key))
-                else:
-                    out[i] = symbol
+            keyed[index] = where, self._keys(index, [values[i] for i in where.tolist()])
+            self._map(index, *keyed[index], out, new)
         new.sort(key=lambda item: item[0])
         for i, index, key in new:
-            out[i] = self._register(index, key)
+            self._register(index, key)
+        for index in {index for _, index, _ in new}:  # every value of the entry is known now
+            self._map(index, *keyed[index], out, [])
         return out
 
-    def _keys(self, index: int, vals: list) -> list:
+    def _map(self, index: int, where: np.ndarray, keys, out: np.ndarray, new: list) -> None:
+        if isinstance(keys, np.ndarray):
+            self._bin_symbols(index, where, keys, out, new)
+        else:
+            self._value_symbols(index, where, keys, out, new)
+
+    def _value_symbols(self, index: int, where: np.ndarray, keys: list, out: np.ndarray,
+                       new: list) -> None:
+        get = self.known[index].get
+        try:
+            found = [None if key is None else get(key, _UNSEEN) for key in keys]
+        except TypeError:
+            self._unhashable(index)
+        unseen = {}
+        for i, key, symbol in zip(where.tolist(), keys, found):
+            if symbol is _UNSEEN and key not in unseen:
+                unseen[key] = i
+                new.append((i, index, key))
+        symbols = np.fromiter((s if type(s) is int else _NO_SYMBOL for s in found),  # noqa: E721
+                              np.int64, len(found))
+        out[where] = symbols
+
+    def _bin_symbols(self, index: int, where: np.ndarray, bins: np.ndarray, out: np.ndarray,
+                     new: list) -> None:
+        """Bin indexes (``-2**63`` where no bin) to symbols, by each distinct bin once."""
+        ok = bins != _NO_BIN
+        unique, first, inverse = np.unique(bins[ok], return_index=True, return_inverse=True)
+        known = self.known[index]
+        lut = np.empty(len(unique), np.int64)
+        at = where[ok]
+        for u, (b, f) in enumerate(zip(unique.tolist(), first.tolist())):
+            symbol = known.get(b)
+            if symbol is None:
+                new.append((int(at[f]), index, b))
+                symbol = _NO_SYMBOL  # set when registered
+            lut[u] = symbol
+        out[at] = lut[inverse.reshape(-1)]
+
+    def _keys(self, index: int, vals: list):
         symbolizer = self.spec.channels[index].symbolizer
         if isinstance(symbolizer, Bins):
             return _bin_keys(symbolizer, vals, self, index)
@@ -221,9 +309,10 @@ class _Symbols:
                         f"(see `slearn info`)")
 
 
-def _bin_keys(bins: Bins, vals: list, symbols: _Symbols, index: int) -> list:
-    """Bin indexes (``None`` where no bin) as :meth:`Bins.symbol_value` gives them; range
-    counts are added to ``symbols``."""
+def _bin_keys(bins: Bins, vals: list, symbols: _Symbols, index: int) -> np.ndarray | list:
+    """Bin indexes as :meth:`Bins.symbol_value` gives them: an array (``_NO_BIN`` where no
+    bin) for plain numbers, else a list (``None`` where no bin); range counts are added to
+    ``symbols``."""
     if not vals:
         return []
     x = None
@@ -251,12 +340,8 @@ def _bin_keys(bins: Bins, vals: list, symbols: _Symbols, index: int) -> list:
         k = np.floor(np.where(ok, q, 0.0)).astype(np.int64)
     else:
         ok = finite
-        k = np.searchsorted(np.asarray(bins._cuts, np.float64), x, side="right")
-    keys = k.tolist()
-    if not ok.all():
-        for i in np.flatnonzero(~ok).tolist():
-            keys[i] = None
-    return keys
+        k = np.searchsorted(np.asarray(bins._cuts, np.float64), x, side="right").astype(np.int64)
+    return np.where(ok, k, _NO_BIN)
 
 
 # --- events and steps ---------------------------------------------------------------------
@@ -316,7 +401,7 @@ class _EpisodeStream:
     def add(self, times: np.ndarray, entries: np.ndarray, values: list) -> None:
         """Values in the order of :func:`slearn.serialize.iter_field_values`."""
         position = self.n_values + np.arange(len(values), dtype=np.int64)
-        symbol = self.symbols.symbols(entries, values, self.n_values)
+        symbol = self.symbols.symbols(entries, values)
         self.n_values += len(values)
         keep = symbol != _NO_SYMBOL
         events = _Events(times[keep], self.is_action[entries[keep]], entries[keep], position[keep],

@@ -75,6 +75,7 @@ _MESSAGE_BYTES = 256  # memory of one message's index entry in an opened block
 _COLUMNS = 6  # log time, publish time, sequence, channel id, payload start and end
 _SOFT_BYTES = 32 << 20  # above this, open blocks that wait for others are closed
 _ZERO_SCAN = 1 << 20
+_SCAN_BYTES = 1 << 16  # blocks from this size are walked by the compiled kernel
 
 MAX_CHUNK_ENV = "SLEARN_MAX_CHUNK_MB"
 DEFAULT_MAX_CHUNK_MB = 256
@@ -673,6 +674,10 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         ValueError: a record is cut or made of zero bytes (a damaged block).
         _TooLarge: holding the messages would take more than ``room`` bytes.
     """
+    if len(buf) >= _SCAN_BYTES:
+        rows = _scanned_messages(buf, layout, wanted, room)
+        if rows is not None:
+            return rows
     out = array("Q")
     pos, end, n_records = 0, len(buf), 0
     channels = layout.channels
@@ -700,6 +705,39 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         pos = nxt
     check_room(end, len(out) // _COLUMNS, room)
     rows = np.frombuffer(out, np.uint64).reshape(-1, _COLUMNS)
+    return rows[np.argsort(rows[:, 0], kind="stable")]  # stable: ties keep file order
+
+
+def _scanned_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
+                      room: int) -> np.ndarray | None:
+    """:func:`_parse_messages` by the compiled walk (:mod:`slearn.mcap_scan`); ``None``
+    when it stopped (a damaged or too large block: the Python walk says why)."""
+    from slearn import mcap_scan
+
+    status, rows, others = mcap_scan.scan(np.frombuffer(buf, np.uint8), room, _BLOCK_MESSAGES,
+                                          _MESSAGE_BYTES)
+    if status != mcap_scan.OK:
+        return None
+    before = dict(layout.channels)
+    defined_at: dict[int, int] = {}  # channel id -> where this block defines it
+    for op, body, nxt in others.tolist():
+        if op == _OP_CHANNEL and nxt - body >= 2:
+            defined_at.setdefault(struct.unpack_from("<H", buf, body)[0], body)
+        _register_record(op, buf, body, nxt, layout)
+        _resolve_channels(layout)
+    if wanted is not None and len(rows):
+        keep = np.ones(len(rows), bool)
+        cids = rows[:, 3]
+        for cid in np.unique(cids).tolist():
+            known = before.get(cid) or layout.channels.get(cid)
+            if known is None or known.topic in wanted:
+                continue
+            drop = cids == cid  # unwanted once its channel is known (as the walk decides)
+            if cid not in before and cid in defined_at:
+                drop &= rows[:, 4] > defined_at[cid]
+            keep &= ~drop
+        rows = rows[keep]
+    check_room(len(buf), len(rows), room)
     return rows[np.argsort(rows[:, 0], kind="stable")]  # stable: ties keep file order
 
 
@@ -921,14 +959,16 @@ class _Merge:
         messages on undefined channels are reported."""
         channels = self.layout.channels
         cids = rows[:, 3].astype(np.int64)
-        ids = cids.tolist()
-        keep = np.fromiter((c in channels for c in ids), bool, len(ids))
+        unique = np.unique(cids).tolist()
+        defined = [c for c in unique if c in channels]
+        keep = np.isin(cids, defined) if len(defined) < len(unique) else np.ones(len(cids), bool)
         if not keep.all():
             bad = int(cids[~keep][0])
             self.report.note_break(self.layout.blocks[i].offset, f"message on undefined channel id {bad}")
         if self.wanted is not None:
-            keep &= np.fromiter((c not in channels or channels[c].topic in self.wanted for c in ids),
-                                bool, len(ids))
+            wanted = [c for c in defined if channels[c].topic in self.wanted]
+            if len(wanted) < len(defined):
+                keep &= np.isin(cids, wanted)
         return (rows, cids) if keep.all() else (rows[keep], cids[keep])
 
     def batches(self) -> Iterator[MessageBatch]:

@@ -188,3 +188,21 @@ def test_robot_logs_stream_as_they_read(rel, spec):
     old = old_read([path], spec)
     assert old[0][0][1].n_events > 100
     assert_same(old, new_read([path], spec))
+
+
+def test_json_batches_never_merge_bad_payloads(tmp_path):
+    """Payloads that are not JSON alone but would make a valid array together stay undecodable."""
+    bad = [b'{"v": [{}', b'{}]}', b'{"v": 1},{"v": 2}', b'{"v": "a\\"],["}', b'{"v": 3} ',
+           b'\xef\xbb\xbf{"v": 4}', b'{"v": "\xc3\xa9"}', b'{"v": 5}']
+    messages = [("/s", i * 10, data) for i, data in enumerate(bad * 3)]
+    path = write_raw(tmp_path / "bad.mcap", messages)
+    spec = Spec.from_dict({"channel": [{"topic": "/s", "field": "v", "role": "observation"}]})
+    old_report = ReadReport(str(path))
+    vocabulary = prepare_vocabulary(spec, Vocabulary())
+    [(_, old, _, _)] = list(_log_episodes(str(path), spec, vocabulary, old_report, False, None, None))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        [(_, new, report)] = list(read_episodes([path], spec, Vocabulary()))
+    assert np.array_equal(old.symbols, new.symbols) and len(new.symbols) == 15
+    assert report.undecodable == old_report.undecodable == {"/s": 9}
+    assert report.first_undecodable == old_report.first_undecodable
