@@ -128,38 +128,38 @@ class _ChannelReader:
 
     def __init__(self, channel, entries: list, cache: DecoderCache, path: str) -> None:
         self.channel, self.entries, self.path = channel, entries, path
+        try:
+            self.decoder = cache.require(channel)
+        except DecodeError as err:
+            raise SpecError(f"{path}: the spec selects topic {channel.topic!r}, but {err}") from err
         self.plan = None
-        if channel.message_encoding == "cdr":
+        if "_rosbags_cdr_decoder" in getattr(self.decoder, "__qualname__", ""):
             self.plan = cdr.field_plan(channel, [e.spec.field for e in entries])
-        if self.plan is None:
-            try:
-                self.decoder = cache.require(channel)
-            except DecodeError as err:
-                raise SpecError(f"{path}: the spec selects topic {channel.topic!r}, but {err}") from err
-            if self.decoder is json.loads:
-                self.decoder = _json
+        if self.decoder is json.loads:
+            self.decoder = _json
         json_objects = self.plan is None and self.decoder is _json
         self.getters = [_getter(e.path) if json_objects else _never for e in entries]
 
     def values(self, payloads: list[bytes], offsets: list[int], report: ReadReport) -> list[list]:
         """Per entry, the value of each payload (:data:`MISSING` when it has none or does
         not decode; undecodable payloads are counted in ``report``)."""
-        n = len(self.entries)
         if self.plan is not None:
             rows = [self._plan_row(data, offset, report) for data, offset in zip(payloads, offsets)]
-            return [[row[i] if row is not None else MISSING for row in rows] for i in range(n)]
+            return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
         objs = _json_all(payloads) if self.decoder is _json else None
         if objs is None:
             objs = [self._decode(data, offset, report) for data, offset in zip(payloads, offsets)]
         return [self._field(get, entry, objs) for get, entry in zip(self.getters, self.entries)]
 
-    def _plan_row(self, data: bytes, offset: int, report: ReadReport):
+    def _plan_row(self, data: bytes, offset: int, report: ReadReport) -> list:
         try:
             return self.plan(data)
-        except cdr.CdrError as err:
-            report.note_undecodable(self.channel.topic, offset, f"channel {self.channel.topic!r}: "
-                                    f"a message does not decode: {err}")
-            return None
+        except cdr.CdrError:  # the full decoder gives its own verdict
+            from slearn.serialize import _field_value
+
+            obj = self._decode(data, offset, report)
+            return [MISSING if obj is MISSING else _field_value(obj, entry, self.path)
+                    for entry in self.entries]
 
     def _decode(self, data: bytes, offset: int, report: ReadReport) -> Any:
         try:
