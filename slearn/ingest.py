@@ -32,6 +32,7 @@ from slearn.stream import Episode
 from slearn.vocabulary import ACTION, Vocabulary
 
 PIECE_EVENTS = 1 << 18  # events of complete steps gathered before a piece leaves
+BATCH_MESSAGES = 1 << 16  # messages decoded at once
 _NO_SYMBOL = -1
 _NO_BIN = np.iinfo(np.int64).min
 _UNSEEN = object()
@@ -400,9 +401,12 @@ class _EpisodeStream:
 
     def add(self, times: np.ndarray, entries: np.ndarray, values: list) -> None:
         """Values in the order of :func:`slearn.serialize.iter_field_values`."""
-        position = self.n_values + np.arange(len(values), dtype=np.int64)
-        symbol = self.symbols.symbols(entries, values)
-        self.n_values += len(values)
+        self.add_symbols(times, entries, self.symbols.symbols(entries, values))
+
+    def add_symbols(self, times: np.ndarray, entries: np.ndarray, symbol: np.ndarray) -> None:
+        """Symbols of values (``-1``: the value gives none) in the order of :meth:`add`."""
+        position = self.n_values + np.arange(len(symbol), dtype=np.int64)
+        self.n_values += len(symbol)
         keep = symbol != _NO_SYMBOL
         events = _Events(times[keep], self.is_action[entries[keep]], entries[keep], position[keep],
                          symbol[keep])
@@ -497,19 +501,31 @@ class _EpisodeStream:
 # --- a log --------------------------------------------------------------------------------
 
 def _batches(log, topics: list[str], on_progress) -> Iterator[MessageBatch]:
-    if hasattr(log, "iter_batches"):
-        return log.iter_batches(topics, on_progress=on_progress)
-    return iter_batches_of(log.iter_messages(topics, on_progress=on_progress))
+    """The log's messages in batches of at most :data:`BATCH_MESSAGES` (a chunk of
+    millions of messages is decoded a part at a time)."""
+    if not hasattr(log, "iter_batches"):
+        yield from iter_batches_of(log.iter_messages(topics, on_progress=on_progress))
+        return
+    for batch in log.iter_batches(topics, on_progress=on_progress):
+        if len(batch) <= BATCH_MESSAGES:
+            yield batch
+            continue
+        for start in range(0, len(batch), BATCH_MESSAGES):
+            part = slice(start, start + BATCH_MESSAGES)
+            yield MessageBatch(batch.buf, batch.channel_ids[part], batch.log_times[part],
+                               batch.starts[part], batch.ends[part], batch.offsets[part],
+                               batch.channels)
 
 
 class _LogReader:
     """The value batches of one log, cut into episodes at the episode markers."""
 
     def __init__(self, path: str, spec: Spec, vocabulary: Vocabulary, ranges,
-                 emit: Callable[[Piece], None]) -> None:
+                 emit: Callable[[Piece], None], new_stream=None) -> None:
         from slearn.serialize import _entries_by_topic
 
         self.path, self.spec, self.emit = path, spec, emit
+        self.new_stream = new_stream or (lambda name: _EpisodeStream(name, spec, self.symbols, emit))
         self.by_topic = _entries_by_topic(spec)
         self.cache = DecoderCache()
         self.readers: dict[int, _ChannelReader] = {}
@@ -578,15 +594,14 @@ class _LogReader:
             return
         if self.stream is not None:
             self.stream.finish()
-        self.stream = _EpisodeStream(episode_name(self.path, key - 1 if key else None), self.spec,
-                                     self.symbols, self.emit)
+        self.stream = self.new_stream(episode_name(self.path, key - 1 if key else None))
         self.stream.key = key
 
     def finish(self) -> None:
         """The last episode's last piece (an empty episode when nothing was read)."""
         if self.stream is None:
-            self._episode(0)
-            self.stream.name = self.path
+            self.stream = self.new_stream(self.path)
+            self.stream.key = 0
         self.stream.finish()
 
 
@@ -603,15 +618,16 @@ def _segments(marker: np.ndarray) -> Iterator[tuple[int, int, int]]:
 
 
 def iter_pieces(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary, report: ReadReport,
-                progress: bool = False, window=None, ranges=None) -> Iterator[Piece]:
+                progress: bool = False, window=None, ranges=None, new_stream=None) -> Iterator[Piece]:
     """The pieces of the episodes of one log, in order (see the module docstring);
-    ``report`` receives the read report."""
+    ``report`` receives the read report. ``new_stream(name)`` makes what each episode's
+    values go to (default: an episode stream that emits the pieces)."""
     from slearn.bags import open_log
     from slearn.serialize import _Progress, _check_coverage, _window
 
     path = os.fspath(path)
     pieces: list[Piece] = []
-    reader = _LogReader(path, spec, vocabulary, ranges, pieces.append)
+    reader = _LogReader(path, spec, vocabulary, ranges, pieces.append, new_stream)
     with open_log(path) as log, _Progress(path, progress) as bar:
         low, high = _window(log, window)
         for _ in reader.read(log, low, high, bar.update):

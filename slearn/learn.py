@@ -23,7 +23,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Callable
+from typing import Callable, Iterator
 
 from slearn import __version__
 from slearn import literal
@@ -34,6 +34,7 @@ from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.library_header import MAX_TIME_UNIX
 from slearn.literal import LiteralLibrary
 from slearn.mcap_read import ReadReport
+from slearn.onepass import can_fit_in_one_pass, fit_and_read
 from slearn.serialize import fit_spec, read_episodes, read_pieces
 from slearn.slicing import TimeSlice
 from slearn.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
@@ -84,6 +85,7 @@ class _Job:
     spec: Spec
     params: dict
     provenance: dict | None = None
+    pieces: Iterator | None = None  # already read (quantiles fitted in the same read)
 
 
 def expand_paths(patterns: list[str]) -> list[str]:
@@ -139,16 +141,22 @@ def default_spec(path: str) -> Spec:
 
 def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
              max_patterns: int | None, scoring: str | None, progress: bool,
-             window: TimeSlice | None = None) -> _Job:
+             window: TimeSlice | None = None, one_read: bool = False) -> _Job:
+    """A new job; ``one_read`` fits quantile bins in the read that learning then uses
+    (:mod:`slearn.onepass`; only when this process reads the logs)."""
     spec = spec if spec is not None else default_spec(paths[0])
-    spec = fit_spec(spec, paths, progress, window)
     vocabulary = Vocabulary()
+    pieces = None
+    if one_read and can_fit_in_one_pass(spec):
+        spec, pieces = fit_and_read(paths, spec, vocabulary, progress, window)
+    else:
+        spec = fit_spec(spec, paths, progress, window)
     scoring = scoring or DEFAULT_SCORING
     if scoring == "literal":
         library = LiteralLibrary(max_length or literal.DEFAULT_MAX_LENGTH, max_patterns)
     else:
         library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns, vocabulary=vocabulary)
-    return _Job(library, vocabulary, spec, {"scoring": scoring})
+    return _Job(library, vocabulary, spec, {"scoring": scoring}, pieces=pieces)
 
 
 def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
@@ -225,7 +233,8 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     _check_scoring(scoring)
     source_date_epoch()
     job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
-           else _new_job(paths, spec, max_length, max_patterns, scoring, progress, window))
+           else _new_job(paths, spec, max_length, max_patterns, scoring, progress, window,
+                         one_read=reader is read_episodes))
     for message in job.spec.warnings():
         warnings.warn(DataWarning(message), stacklevel=2)
     result = LearnResult(os.fspath(output), 0, 0, resumed_from=os.fspath(resume) if resume else None)
@@ -245,7 +254,9 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
 def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
                     window: TimeSlice | None, reader: Callable = read_episodes) -> None:
-    if reader is read_episodes:  # read here, in pieces
+    if job.pieces is not None:  # read already (quantile bins fitted in the same read)
+        pieces = job.pieces
+    elif reader is read_episodes:  # read here, in pieces
         pieces = read_pieces(paths, job.spec, job.vocabulary, progress, window)
     else:  # whole episodes from another reader (Ray)
         pieces = ((name, episode, report, True, True)

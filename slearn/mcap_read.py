@@ -705,7 +705,7 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         pos = nxt
     check_room(end, len(out) // _COLUMNS, room)
     rows = np.frombuffer(out, np.uint64).reshape(-1, _COLUMNS)
-    return rows[np.argsort(rows[:, 0], kind="stable")]  # stable: ties keep file order
+    return _in_time_order(rows)
 
 
 def _scanned_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
@@ -738,7 +738,15 @@ def _scanned_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None
             keep &= ~drop
         rows = rows[keep]
     check_room(len(buf), len(rows), room)
-    return rows[np.argsort(rows[:, 0], kind="stable")]  # stable: ties keep file order
+    return _in_time_order(rows)
+
+
+def _in_time_order(rows: np.ndarray) -> np.ndarray:
+    """Rows sorted by log time, ties in file order (no copy when they already are)."""
+    times = rows[:, 0]
+    if np.all(times[1:] >= times[:-1]):
+        return rows
+    return rows[np.argsort(times, kind="stable")]
 
 
 def block_cost(n_bytes: int, n_records: int) -> int:

@@ -206,3 +206,32 @@ def test_json_batches_never_merge_bad_payloads(tmp_path):
     assert np.array_equal(old.symbols, new.symbols) and len(new.symbols) == 15
     assert report.undecodable == old_report.undecodable == {"/s": 9}
     assert report.first_undecodable == old_report.first_undecodable
+
+
+@pytest.mark.parametrize("sample", [50, 1 << 20])
+def test_one_read_fits_and_learns_as_two_reads(tmp_path, monkeypatch, sample):
+    """Quantile edges, vocabulary and library match fit_spec then read_pieces."""
+    import slearn.onepass as onepass
+    import slearn.serialize as serialize
+
+    monkeypatch.setattr(serialize, "_QUANTILE_SAMPLE", sample)
+    monkeypatch.setattr(ingest, "BATCH_MESSAGES", 97)
+    paths = [write_raw(tmp_path / "a.mcap", busy_messages(400, 5, markers=True)),
+             write_raw(tmp_path / "b.mcap", busy_messages(300, 6))]
+    data = dict(SPEC, channel=SPEC["channel"] + [
+        {"topic": "/s", "field": "v", "role": "observation", "quantiles": 5, "name": "vq"},
+        {"topic": "/s", "field": "w[0]", "role": "observation", "quantiles": 3, "name": "wq"}])
+    spec = Spec.from_dict(data)
+    assert onepass.can_fit_in_one_pass(spec)
+    out = {}
+    for label in ("one", "two"):
+        if label == "two":
+            monkeypatch.setattr(learn_module, "can_fit_in_one_pass", lambda spec: False)
+        target = tmp_path / f"{label}.parquet"
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = learn_files(paths, target, spec=spec)
+        out[label] = (target.read_bytes(), sorted(str(w.message) for w in caught), result.n_episodes)
+    assert out["one"] == out["two"]
+    assert out["one"][2] > 3 and any("outside range" in w for w in out["one"][1])
+    assert not list(tmp_path.glob("slearn-fit-*"))
