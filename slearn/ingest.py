@@ -166,7 +166,12 @@ class _ChannelReader:
         try:
             return decode_payload(self.decoder, self.channel, data)
         except DecodeError as err:
-            report.note_undecodable(self.channel.topic, offset, str(err))
+            if offset >= 0:
+                report.note_undecodable(self.channel.topic, offset, str(err))
+            else:  # the -n-th message read (see _where)
+                read, report.n_messages = report.n_messages, -offset
+                report.note_undecodable(self.channel.topic, -1, str(err))
+                report.n_messages = read
             return MISSING
 
     def _field(self, get: Callable, entry, objs: list) -> list:
@@ -565,7 +570,7 @@ class _LogReader:
             self.seen[topic] = self.seen.get(topic, 0) + len(on)
             reader = self._reader(batch.channels[cid])
             payloads = [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
-            per_entry = reader.values(payloads, batch.offsets[on].tolist(), report)
+            per_entry = reader.values(payloads, _where(batch, on, report), report)
             for entry, values in zip(reader.entries, per_entry):
                 got = [i for i, v in enumerate(values) if v is not MISSING]
                 entry.n_values += len(got)
@@ -603,6 +608,16 @@ class _LogReader:
             self.stream = self.new_stream(self.path)
             self.stream.key = 0
         self.stream.finish()
+
+
+def _where(batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[int]:
+    """Byte offsets of messages ``on``; where a log cannot tell them, ``-n`` for the
+    ``n``-th message read (so an undecodable one is named as the per-message path names it)."""
+    offsets = batch.offsets[on]
+    if (offsets >= 0).all():
+        return offsets.tolist()
+    numbers = report.n_messages - len(batch) + on + 1
+    return np.where(offsets >= 0, offsets, -numbers).tolist()
 
 
 def _segments(marker: np.ndarray) -> Iterator[tuple[int, int, int]]:
