@@ -11,9 +11,13 @@ build the steps); ``learn`` is :func:`slearn.learn.learn_files` (fit, read, lear
 library; kernels warm). Logs: a JSON pointer log (``--trials`` trials, written in code) and
 the PR2 ROS 2 log repeated ``--copies`` times (its JointState and Odometry channels).
 
+The PR2 log is also learned with quantile bins (fitted and learned in one read of the log).
+
 Memory (``--rss``): peak RSS of ``slearn learn`` in a fresh process on pointer logs of
-``--rss-messages`` messages and a tenth of that (in chunks of 20,000 trials), one whose
-chunks all start at log time 0, and one whose messages are all in a single chunk.
+``--rss-messages`` messages and a tenth of that (in chunks of 20,000 trials), on a tiny
+log (what the process takes before any data), on a log whose chunks all start at log
+time 0, and on one whose 3,000,000 messages are all in a single chunk (read with
+``SLEARN_MAX_CHUNK_MB=2048``: the default limit skips a chunk that large).
 """
 
 from __future__ import annotations
@@ -107,27 +111,41 @@ def write_repeated(source: Path, path: Path, copies: int) -> None:
         writer.finish()
 
 
-def bench(name: str, path: Path, spec: Spec, factory, runs: int, folder: Path) -> None:
+def bench(name: str, path: Path, spec: Spec, factory, runs: int, folder: Path,
+          quantile_spec: Spec | None = None) -> None:
     topics = spec.topics()
     t_anchor, n_anchor = best_of(lambda: mcap_decoded(path, topics, factory), runs)
     t_ingest, (n_read, n_events) = best_of(lambda: slearn_ingest(path, spec), runs)
     slearn_learn(path, spec, folder / "warm.parquet")  # compile the kernels first
     t_learn, _ = best_of(lambda: slearn_learn(path, spec, folder / "lib.parquet"), runs)
+    figures = [("slearn ingest (read_episodes)", t_ingest), ("slearn learn (learn_files)", t_learn)]
+    if quantile_spec is not None:
+        t_fit, _ = best_of(lambda: slearn_learn(path, quantile_spec, folder / "q.parquet"), runs)
+        figures.append(("slearn learn, quantile bins", t_fit))
+        import slearn.learn
+
+        one_read = slearn.learn.can_fit_in_one_pass
+        slearn.learn.can_fit_in_one_pass = lambda spec: False  # fit_spec, then a second read
+        try:
+            t_two, _ = best_of(lambda: slearn_learn(path, quantile_spec, folder / "q2.parquet"), runs)
+        finally:
+            slearn.learn.can_fit_in_one_pass = one_read
+        figures.append(("  same, fitted in a read of its own", t_two))
     anchor = n_anchor / t_anchor
     print(f"{name}: {path.stat().st_size / 1e6:.1f} MB, {n_read:,} messages of the spec's "
           f"topics, {n_events:,} events")
     print(f"  mcap iter_decoded_messages (anchor)  {anchor:>10,.0f} msg/s  1.00x")
-    for label, seconds in (("slearn ingest (read_episodes)", t_ingest),
-                           ("slearn learn (learn_files)", t_learn)):
+    for label, seconds in figures:
         rate = n_read / seconds
         print(f"  {label:<36} {rate:>10,.0f} msg/s  {rate / anchor:.2f}x")
     sys.stdout.flush()
 
 
-def peak_rss_mb(args: list[str]) -> tuple[float, float, int]:
+def peak_rss_mb(args: list[str], env: dict | None = None) -> tuple[float, float, int]:
     """Peak RSS (MB) and seconds of a child process, and its exit code."""
     start = time.perf_counter()
-    child = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    child = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             env=None if env is None else {**os.environ, **env})
     _, status, usage = os.wait4(child.pid, 0)
     child.stderr.close()
     return usage.ru_maxrss / 1024, time.perf_counter() - start, os.waitstatus_to_exitcode(status)
@@ -135,13 +153,14 @@ def peak_rss_mb(args: list[str]) -> tuple[float, float, int]:
 
 def rss(folder: Path, messages: int) -> None:
     print(f"peak RSS of `slearn learn LOG -o lib.parquet` (fresh process):")
-    cases = [(messages // 10, "chunked"), (messages, "chunked"), (messages, "time0"),
-             (3_000_000, "one_chunk"), (messages, "one_chunk")]
+    cases = [(1_000, "chunked"), (messages // 10, "chunked"), (messages, "chunked"),
+             (messages // 10, "time0"), (3_000_000, "one_chunk")]
     for n, layout in cases:
         log = folder / f"pointer_{layout}_{n}.mcap"
         written = write_pointer_log(log, n // 2, layout)
+        env = {"SLEARN_MAX_CHUNK_MB": "2048"} if layout == "one_chunk" else None
         mb, seconds, code = peak_rss_mb([sys.executable, "-m", "slearn", "learn", str(log), "-o",
-                                         str(folder / "rss.parquet"), "--force"])
+                                         str(folder / "rss.parquet"), "--force"], env)
         print(f"  {written:>12,} messages, {layout:<9} ({log.stat().st_size / 1e6:6.1f} MB): "
               f"{mb:7.0f} MB peak RSS, {seconds:6.1f} s, exit {code}")
         sys.stdout.flush()
@@ -166,8 +185,11 @@ def main() -> None:
 
             log = folder / "pr2_x.mcap"
             write_repeated(PR2, log, args.copies)
+            quantiles = {**PR2_SPEC, "channel": [
+                {k: v for k, v in c.items() if k not in ("range", "count", "width", "edges")}
+                | {"quantiles": 8} for c in PR2_SPEC["channel"]]}
             bench(f"ROS 2 PR2 log x{args.copies}", log, Spec.from_dict(PR2_SPEC),
-                  Ros2DecoderFactory(), args.runs, folder)
+                  Ros2DecoderFactory(), args.runs, folder, Spec.from_dict(quantiles))
         else:
             print(f"ROS 2 PR2 log: {PR2} not available, skipped")
         if args.rss:

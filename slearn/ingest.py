@@ -1,8 +1,8 @@
 """One-pass streaming ingest: message batches in, pieces of episodes out.
 
 Messages come from the reader a block at a time (:meth:`slearn.mcap_read.McapLog.iter_batches`);
-each batch is decoded (JSON through the C scanner, ROS 2 CDR reading only the spec's fields:
-:mod:`slearn.cdr`), its field values are symbolized per entry with numpy, ordered, and cut
+each batch is decoded (JSON as one array per batch, ROS 2 CDR reading only the spec's
+fields: :mod:`slearn.cdr`), its field values are symbolized per entry with numpy, ordered, and cut
 into steps with numpy. Only the steps not yet complete (the last log time, the open step)
 are carried to the next batch, so memory does not grow with the log: an episode leaves as
 pieces of complete steps, and learning a piece after the previous one
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import Counter
 from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any, Callable, Iterator
@@ -213,8 +214,6 @@ class _Symbols:
     (as the per-message path does), so the vocabulary comes out the same."""
 
     def __init__(self, spec: Spec, vocabulary: Vocabulary, path: str, ranges) -> None:
-        from collections import Counter
-
         self.spec, self.vocabulary, self.path, self.ranges = spec, vocabulary, path, ranges
         self.known: list[dict] = [{} for _ in spec.channels]  # per entry: value -> symbol
         self.per_channel = Counter(channel for _, channel, _ in vocabulary.items())

@@ -797,11 +797,6 @@ class MessageBatch(NamedTuple):
     def __len__(self) -> int:
         return len(self.log_times)
 
-    def payloads(self) -> list[bytes]:
-        """Every payload, in order."""
-        buf = self.buf
-        return [buf[a:b] for a, b in zip(self.starts.tolist(), self.ends.tolist())]
-
 
 def batch_of(messages: list[RawMessage]) -> MessageBatch:
     """A batch of raw messages (payloads copied into one buffer)."""

@@ -235,3 +235,16 @@ def test_one_read_fits_and_learns_as_two_reads(tmp_path, monkeypatch, sample):
     assert out["one"] == out["two"]
     assert out["one"][2] > 3 and any("outside range" in w for w in out["one"][1])
     assert not list(tmp_path.glob("slearn-fit-*"))
+
+
+@pytest.mark.parametrize("topics", [None, ["/s", "/c"]])
+def test_compiled_record_walk_finds_what_the_python_walk_finds(tmp_path, monkeypatch, topics):
+    import slearn.mcap_read as mcap_read
+
+    path = write_raw(tmp_path / "a.mcap", busy_messages(300, 7, markers=True), chunk_size=4000)
+    runs = []
+    for scan_bytes in (1 << 60, 0):
+        monkeypatch.setattr(mcap_read, "_SCAN_BYTES", scan_bytes)
+        with mcap_read.McapLog(path) as log:
+            runs.append([(m.topic, m.log_time_ns, m.data, m.offset) for m in log.iter_messages(topics)])
+    assert runs[0] == runs[1] and len(runs[0]) > 500
