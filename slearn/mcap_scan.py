@@ -2,8 +2,8 @@
 
 :func:`slearn.mcap_read._parse_messages` walks records one at a time in Python; for a
 large block this kernel finds the same message rows. It stops at the first record that
-is cut, made of zero bytes or too short for a message header, or when the block would
-not fit in memory; the caller then takes the Python walk, which says why exactly.
+is cut, made of zero bytes or too short for a message header, holds a log time past
+int64, or when the block would not fit in memory; the caller then takes the Python walk, which says why exactly.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ STOPPED = 1
 _OP_MESSAGE = 0x05
 _OP_SCHEMA = 0x03
 _OP_CHANNEL = 0x04
+_LAST_TIME_NS = 2**63 - 1  # as mcap_read: later log times mark a block damaged
 
 
 @helper
@@ -43,6 +44,8 @@ def scan(buf, room, check_every, record_cost):
         if n_records % check_every == 0 and end + record_cost * n_records > room:
             return STOPPED, np.zeros((0, 6), np.uint64), np.zeros((0, 3), np.int64)
         if op == _OP_MESSAGE:
+            if _u64(buf, pos + 9 + 6, 8) > np.uint64(_LAST_TIME_NS):
+                return STOPPED, np.zeros((0, 6), np.uint64), np.zeros((0, 3), np.int64)
             n_messages += 1
         elif op == _OP_SCHEMA or op == _OP_CHANNEL:
             n_others += 1

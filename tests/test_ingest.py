@@ -248,3 +248,14 @@ def test_compiled_record_walk_finds_what_the_python_walk_finds(tmp_path, monkeyp
         with mcap_read.McapLog(path) as log:
             runs.append([(m.topic, m.log_time_ns, m.data, m.offset) for m in log.iter_messages(topics)])
     assert runs[0] == runs[1] and len(runs[0]) > 500
+
+
+def test_compiled_record_walk_leaves_damaged_blocks_to_the_python_walk(tmp_path, monkeypatch):
+    import slearn.mcap_read as mcap_read
+
+    messages = [("/s", i, b'{"v": 1}') for i in range(50)] + [("/s", 2**63, b'{"v": 2}')]
+    path = write_raw(tmp_path / "late.mcap", messages, chunk_size=1 << 20)
+    monkeypatch.setattr(mcap_read, "_SCAN_BYTES", 0)
+    with mcap_read.McapLog(path) as log:
+        assert list(log.iter_messages()) == []
+        assert "past the year 2262" in log.report.describe()
