@@ -96,6 +96,11 @@ class PlannerSettings:
         prior: pseudo-counts of the shorter context in a longer one's distribution.
         novelty: share of those pseudo-counts that stands for an unknown outcome.
         curiosity: value of an unknown outcome, as a share of the value of staying put.
+        optimism: value of an action never tried from a state (1: as good as the goal), so
+            exploration heads for the nearest untried action or unvisited state.
+        stale: after the library's change detector raised an alarm, counts from before it
+            weigh at most this many sightings per outcome (trust shifts to recent steps).
+        half_life: fade weights with this half-life in steps (0: never).
         min_probability: below this probability of reaching the goal there is no route.
         max_states: states searched at most (the rest count as failures).
     """
@@ -109,6 +114,8 @@ class PlannerSettings:
     min_probability: float = 0.01
     max_states: int = 20_000
     half_life: float = 0.0
+    optimism: float = 1.0
+    stale: float = 1.0
 
     @property
     def fade_rate(self) -> float:
@@ -179,7 +186,7 @@ class Planner:
         s = self.settings
         index = (self.library.tree, self._root())
         graph = self._search_graph(index, start, action_tokens, self._goal_mask(goals))
-        q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity)
+        q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity, s.optimism)
         return self._plan_from(graph, q, reach, actions, action_tokens, index, start)
 
     def _root(self) -> int:
@@ -194,7 +201,7 @@ class Planner:
             self._reset_states()
             if _build(tree, root, self._states, self._node_state, graph, start, action_tokens,
                       goal_mask, s.order, s.prior, s.novelty, self.library.clock, s.fade_rate,
-                      s.horizon):
+                      self._epoch(), s.stale, s.horizon):
                 return graph
             self._graph = _new_graph(s.max_states, 2 * s.order + 1, len(action_tokens), 2 * len(graph.nxt))
 
@@ -206,12 +213,19 @@ class Planner:
 
     def _plan_from(self, graph, q, reach, actions, action_tokens, index, start) -> Plan:
         best = _best_action(q[: len(actions)], reach[: len(actions)])
-        if reach[best] < self.settings.min_probability:
+        routeless = reach[best] < self.settings.min_probability
+        if routeless and q[best] <= 0.0:
             return self._curious(actions, action_tokens, index, start, float(q[best]))
         steps, outcomes = _path(graph, q, reach, len(actions), self.settings.horizon)
         table = self.library.tokens
-        return Plan(tuple(actions[j] for j in steps), tuple(table.symbols(int(o)) for o in outcomes),
-                    float(reach[best]), float(q[best]))
+        return Plan(tuple(actions[j] for j in steps),
+                    tuple(table.symbols(int(o)) if o >= 0 else () for o in outcomes),
+                    float(reach[best]), float(q[best]), explore=bool(routeless))
+
+    def _epoch(self) -> int:
+        """The planned view's count of change alarms (0: none, all counts are trusted)."""
+        mixer = self.library.mixer
+        return int(mixer.epoch[self.view]) if mixer is not None and len(mixer.epoch) > self.view else 0
 
     def _curious(self, actions, action_tokens, index, start, value) -> Plan:
         tried = _tried(index[0], index[1], start, action_tokens)
@@ -297,16 +311,23 @@ def _contexts(tree, root, tokens, obs_pos, action, levels, cand):
 
 
 @helper
-def _weights(tree, node, outcomes, k, out, clock, rate):
+def _weights(tree, node, outcomes, k, out, clock, rate, epoch, stale):
     """Total weight after the context ``node`` and the weight of each of ``outcomes[:k]``.
 
     Weights fade with the age of their newest sighting (``rate`` per step, 0 = never).
+    After the view's change detector raised an alarm (``epoch`` > 0), trust shifts to the
+    counts since the alarm: older counts weigh at most ``stale`` sightings per outcome.
     """
     out[:k] = 0.0
     total = 0.0
     e = tree.first[node]
+    current = epoch > 0 and tree.epoch[node] == epoch
     while e != -1:
-        w = float(tree.count[e]) * np.exp(-rate * (clock - tree.last_seen[e]))
+        w = float(tree.count[e])
+        if epoch > 0:
+            recent = float(tree.fresh[e]) if current else 0.0
+            w = recent + min(w - recent, stale)
+        w *= np.exp(-rate * (clock - tree.last_seen[e]))
         total += w
         for i in range(k):
             if outcomes[i] == tree.outcome[e]:
@@ -316,8 +337,8 @@ def _weights(tree, node, outcomes, k, out, clock, rate):
 
 
 @kernel
-def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, clock, rate, cand,
-                 outcomes, probs, work):
+def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, clock, rate, epoch,
+                 stale, cand, outcomes, probs, work):
     """Outcome probabilities after ``action`` in the context ending at ``tokens[obs_pos]``.
 
     Blends contexts of order 0 to ``levels - 1`` (see the module docstring). Fills
@@ -334,12 +355,13 @@ def distribution(tree, root, tokens, obs_pos, action, levels, prior, novelty, cl
         outcomes[k] = tree.outcome[e]
         k += 1
         e = tree.next[e]
-    total = _weights(tree, cand[0], outcomes, k, probs, clock, rate)
+    total = _weights(tree, cand[0], outcomes, k, probs, clock, rate, epoch, stale)
     probs[:k] /= total + prior
     unknown = prior / (total + prior)
     keep = prior * (1.0 - novelty)
     for level in range(1, levels):
-        total = _weights(tree, cand[level], outcomes, k, work, clock, rate) if level < n else 0.0
+        total = (_weights(tree, cand[level], outcomes, k, work, clock, rate, epoch, stale)
+                 if level < n else 0.0)
         for i in range(k):
             probs[i] = (work[i] * (level < n) + keep * probs[i]) / (total + prior)
         unknown = (keep * unknown + prior * novelty) / (total + prior)
@@ -383,7 +405,7 @@ def _state_id(states, node_state, tokens, length, graph):
 
 @kernel
 def _build(tree, root, states, node_state, graph, start, actions, goal_mask, order, prior, novelty,
-           clock, rate, horizon):
+           clock, rate, epoch, stale, horizon):
     """Expand every state reachable within ``horizon`` steps from ``start`` (breadth first).
 
     Returns False when the transition arrays ran out of room (grow them and build again).
@@ -403,7 +425,7 @@ def _build(tree, root, states, node_state, graph, start, actions, goal_mask, ord
             graph.unknown[s * n_act + j] = 0.0
             if not graph.goal[s] and graph.depth[s] < horizon:
                 if not _expand(tree, root, states, node_state, graph, s, s * n_act + j, actions[j],
-                               goal_mask, order, prior, novelty, clock, rate, scratch):
+                               goal_mask, order, prior, novelty, clock, rate, epoch, stale, scratch):
                     return False
             graph.offsets[s * n_act + j + 1] = graph.size[1]
         s += 1
@@ -412,7 +434,7 @@ def _build(tree, root, states, node_state, graph, start, actions, goal_mask, ord
 
 @kernel
 def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, order, prior, novelty,
-            clock, rate, scratch):
+            clock, rate, epoch, stale, scratch):
     """Add the transitions of state ``s`` under an action (``sa`` = its (state, action) slot).
 
     Returns False when the transition arrays are out of room.
@@ -421,7 +443,8 @@ def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, ord
     length = graph.length[s]
     levels = min(order, (length - 1) // 2) + 1
     k, graph.unknown[sa] = distribution(tree, root, graph.tok[s], length - 1, action, levels,
-                                        prior, novelty, clock, rate, cand, outcomes, probs, work)
+                                        prior, novelty, clock, rate, epoch, stale, cand, outcomes, probs,
+                                        work)
     buf[:length] = graph.tok[s, :length]
     buf[length] = action
     keep = min(length + 2, 2 * order + 1)
@@ -446,11 +469,14 @@ def _expand(tree, root, states, node_state, graph, s, sa, action, goal_mask, ord
 
 
 @helper
-def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity):
+def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity, optimism):
     """Value and probability of reaching the goal after action ``sa`` from state ``s``.
 
-    An unknown outcome counts as a step lost in place, worth ``curiosity`` times staying.
+    An unknown outcome counts as a step lost in place, worth ``curiosity`` times staying;
+    an action never tried from the state is worth ``optimism`` (as if it reached the goal).
     """
+    if unknown[sa] >= 1.0:
+        return discount * max(optimism, curiosity * value[s]), reach[s]
     v, r = 0.0, 0.0
     for e in range(offsets[sa], offsets[sa + 1]):
         v += prob[e] * value[nxt[e]]
@@ -459,7 +485,7 @@ def _q(offsets, nxt, prob, unknown, value, reach, s, sa, discount, curiosity):
 
 
 @kernel
-def _values(graph, n_act, horizon, discount, curiosity):
+def _values(graph, n_act, horizon, discount, curiosity, optimism):
     """Value iteration; returns ``(q, reach)`` per (state, action) of the final sweep."""
     n, goal, offsets, nxt, prob, unknown = (graph.size[0], graph.goal, graph.offsets, graph.nxt,
                                             graph.prob, graph.unknown)
@@ -475,7 +501,8 @@ def _values(graph, n_act, horizon, discount, curiosity):
                 continue
             best, best_r = -1.0, -1.0
             for j in range(n_act):
-                v, p = _q(offsets, nxt, prob, unknown, value, reach, s, s * n_act + j, discount, curiosity)
+                v, p = _q(offsets, nxt, prob, unknown, value, reach, s, s * n_act + j, discount, curiosity,
+                          optimism)
                 q[s * n_act + j], r[s * n_act + j] = v, p
                 if v > best + 1e-12 or (v > best - 1e-12 and p > best_r):
                     best, best_r = v, p

@@ -12,6 +12,7 @@ from test_literal import L, R, pointer_episode
 
 POS = 10  # position k is symbol k + 10 (see test_library.pointer_episode)
 POINTER_L, POINTER_R = 0, 1  # in pointer_vocabulary, label k is symbol k + 1
+CAUTIOUS = PlannerSettings(optimism=0.0)  # untried actions are not worth the goal (no exploration)
 
 
 def steps(text: str):
@@ -81,12 +82,12 @@ def test_more_probable_action_wins_and_fewer_steps_win():
 def test_longer_context_changes_the_outlook():
     # after 1 R 2, R goes on to 3; after 3 L 2, R jumps to 4
     library = learned("1 R 2 R 3", "3 L 2 R 4", max_length=2, times=4)
-    planner = Planner(library)
+    planner = Planner(library, settings=CAUTIOUS)
     ahead = planner.plan(steps("1 R 2"), 3 + POS)
     back = planner.plan(steps("3 L 2"), 3 + POS)
     assert ahead.action == (R,) and ahead.probability > 0.6
     assert back.probability < ahead.probability
-    blind = Planner(library, settings=PlannerSettings(order=0)).plan(steps("3 L 2"), 3 + POS)
+    blind = Planner(library, settings=PlannerSettings(order=0, optimism=0.0)).plan(steps("3 L 2"), 3 + POS)
     assert blind.probability > back.probability  # order 0 mixes both contexts
 
 
@@ -105,7 +106,7 @@ def test_distribution_sums_to_one_with_the_unknown_share():
                                table.find(OBSERVATION, (p + 1,))], np.int32)
             for levels in (1, 2):
                 k, unknown = distribution(tree, root, tokens, 2, table.find(ACTION, (POINTER_R,)),
-                                          levels, 1.0, 0.5, library.clock, 0.001, cand, outcomes,
+                                          levels, 1.0, 0.5, library.clock, 0.001, 0, 1.0, cand, outcomes,
                                           probs, work)
                 assert k >= 1 and 0.0 < unknown < 1.0
                 assert probs[:k].sum() + unknown == pytest.approx(1.0)
@@ -115,7 +116,7 @@ def test_distribution_sums_to_one_with_the_unknown_share():
 
 def test_unseen_observation_or_goal_explores_the_least_tried_action():
     library = learned("3 L 2", "3 L 4", "3 R 5", max_length=1)
-    planner = Planner(library)
+    planner = Planner(library, settings=CAUTIOUS)
     plan = planner.plan(steps("3"), 9 + POS)  # 9 was never observed: no route
     assert plan.explore and plan.action == (R,) and plan.probability == 0.0
     library.learn(pointer_episode("3 R 5"))
@@ -127,7 +128,7 @@ def test_unseen_observation_or_goal_explores_the_least_tried_action():
 
 def test_untried_action_is_unknown_and_worth_trying():
     library = learned("1 R 2", max_length=1, times=3)
-    planner = Planner(library, actions=[(L,), (R,)])
+    planner = Planner(library, actions=[(L,), (R,)], settings=CAUTIOUS)
     assert planner.actions == [(L,), (R,)]
     plan = planner.plan(steps("1"), 2 + POS)
     assert plan.action == (R,) and not plan.explore
@@ -137,7 +138,7 @@ def test_untried_action_is_unknown_and_worth_trying():
 
 def test_replanning_with_online_learning_follows_a_changed_world():
     library = learned("1 R 2 L 1 R 2 L 1 R 2 L 1 R 2 L 1", max_length=3, times=5)
-    planner = Planner(library)
+    planner = Planner(library, settings=CAUTIOUS)
     before = planner.plan(steps("2 L 1"), 2 + POS)
     assert before.actions == ((R,),) and before.probability > 0.9
     for _ in range(20):  # the world changed: from 1, R now stays at 1
@@ -170,8 +171,8 @@ def test_half_life_lets_recent_outcomes_outweigh_old_ones():
     library = learned("1 R 2", max_length=1, times=10)
     library.learn(pointer_episode("5 " + " ".join(["L 5"] * 200)))  # time passes elsewhere
     library.learn(pointer_episode("1 R 3 L 1 R 3 L 1 R 3"))
-    steady = Planner(library).plan(steps("1"), 3 + POS)
-    fading = Planner(library, settings=PlannerSettings(half_life=20)).plan(steps("1"), 3 + POS)
+    steady = Planner(library, settings=PlannerSettings(stale=1e9, optimism=0.0)).plan(steps("1"), 3 + POS)
+    fading = Planner(library, settings=PlannerSettings(half_life=20, stale=1e9, optimism=0.0)).plan(steps("1"), 3 + POS)
     assert steady.probability < 0.5 < fading.probability
 
 
