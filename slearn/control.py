@@ -1,169 +1,51 @@
-"""Closed-loop goal seeking on the simulated pointer, with a Q-learning baseline next to it.
+"""Closed-loop goal seeking on any discrete system, slearn next to honest peers.
 
-A run learns a library offline from random trials (or takes one), then drives a step-by-step
-pointer (:class:`PointerEnv`) toward a sequence of random goal positions: before each step
-the :class:`~slearn.planner.Planner` plans from the recent history, the chosen command is
-issued, and the library learns the step online. For ``reversal`` and ``scramble`` the
-offline trials are the unchanged pointer and the world changes halfway through the goals,
-so the per-block results show control recovering as the library relearns.
+A run explores its environment (:mod:`slearn.envs`: the simulated pointer, or a
+Gymnasium environment with discrete spaces) with ``trials`` random actions, then drives
+each agent (:mod:`slearn.agents`) toward the same sequence of goal observations, in its
+own copy of the environment (same seed): before each step the agent chooses an action,
+the environment steps, and the agent learns the step. Every agent starts from the same
+exploration log: slearn learns it into a pattern library (or starts from a given one,
+plus the log), goal-conditioned Q replays it for every goal, the count model counts it,
+and the single-goal Q-learner (the paper's argument) is trained on it for one goal.
 
-The baseline is a tabular :class:`~slearn.qlearning.QLearner` trained on the same random
-trials for one goal, then given the same new goals in its own pointer (same seed); it keeps
-learning online from each new goal's reward.
+For the pointer's ``reversal`` and ``scramble`` the exploration sees the unchanged world
+and the world changes at ``switch_goal`` (default halfway), so the per-block results show
+each agent recovering. A goal is a tuple of observations (any will do); random goals are
+single observations, each different from the one before. Goals on the pointer are all
+labels; on a Gymnasium grid, the cells that are not holes and that the true model can
+reach; elsewhere, the observations seen while exploring that did not end an episode
+without reward.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 import os
-import time
-from collections import deque
-from dataclasses import asdict, dataclass, field
-from typing import Protocol
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from slearn import __version__
+from slearn.agents import (CountModelAgent, GoalQAgent, SingleGoalQAgent, SlearnAgent, Transitions,
+                           explore, true_model_agent)
+from slearn.envs import PointerEnv, make_env  # noqa: F401  (PointerEnv: the pointer's adapter)
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
-from slearn.planner import Planner, PlannerSettings
-from slearn.qlearning import QLearner
+from slearn.planner import PlannerSettings
 from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.recorders.record_pointer import (ANGLE_CHANNEL, ANGLE_SCHEMA, COMMAND_SCHEMA,
-                                             POSITION_SCHEMA, SENSE_DELAY_NS, TRIAL_NS)
-from slearn.recorders.pointer import (BIN_DEG, COMMAND_CHANNEL, COMMAND_NAMES, CONDITIONS,
-                                      FULL_TURN_DEG, MAX_ERROR_DEG, N_BINS, POSITION_CHANNEL, R,
-                                      PointerConfig, PointerRun, bin_of, pointer_vocabulary,
-                                      simulate)
-from slearn.stream import Episode
+from slearn.recorders.pointer import pointer_vocabulary
+from slearn.recorders.record_pointer import COMMAND_SCHEMA, POSITION_SCHEMA, TRIAL_NS
 from slearn.vocabulary import Vocabulary
 
 SWITCHING = ("reversal", "scramble")
 OFFLINE_TRIALS = 10_000
 DEFAULT_BUDGET = 100
-TRAINED_GOAL_EPISODES = 20
-
-
-class PointerEnv:
-    """The pointer of :mod:`slearn.recorders.pointer`, one command at a time.
-
-    Same dynamics as :func:`~slearn.recorders.pointer.simulate` (start at the centre of a
-    random bin; ``error``, ``delay``, ``hardstop``), except that ``reversal`` and
-    ``scramble`` change when :meth:`switch` is called rather than at a fixed trial.
-
-    Args:
-        condition: one of :data:`~slearn.recorders.pointer.CONDITIONS`.
-        seed: seed of the start, the scramble permutation and the dynamics' noise.
-        error_deg: half-width of the move noise (``error``).
-        delay_prob: chance that a command is delayed by one step (``delay``).
-        start_bin: start in this bin (0..35) instead of a random one.
-    """
-
-    def __init__(self, condition: str, seed: int = 0, *, error_deg: float = 5.0,
-                 delay_prob: float = 0.5, start_bin: int | None = None) -> None:
-        _check_pointer(condition, seed, error_deg, delay_prob)
-        # the simulator's streams (start, permutation, policy, dynamics); no policy here
-        start, permutation, _, dynamics = (np.random.default_rng(s)
-                                           for s in np.random.SeedSequence(seed).spawn(4))
-        first = int(start.integers(N_BINS)) if start_bin is None else int(start_bin)
-        self.condition = condition
-        self.angle_deg = (first + 0.5) * BIN_DEG
-        self.error_deg = float(error_deg)
-        self.delay_prob = float(delay_prob)
-        self.switched = False
-        self.steps = 0
-        self._labels = permutation.permutation(np.arange(1, N_BINS + 1))
-        self._rng = dynamics
-        self._pending = 0
-
-    @property
-    def bin(self) -> int:
-        """The true bin index, 0..35."""
-        return int(bin_of(np.array([self.angle_deg]))[0])
-
-    @property
-    def label(self) -> int:
-        """The position label the sensor reports, 1..36."""
-        if self.switched and self.condition == "scramble":
-            return int(self._labels[self.bin])
-        return self.bin + 1
-
-    def switch(self) -> None:
-        """Reverse the commands (``reversal``) or permute the labels (``scramble``)."""
-        self.switched = True
-
-    def step(self, command: int) -> int:
-        """Issue ``command`` (0 = ``L``, 1 = ``R``); return the label read afterwards."""
-        direction = 1 if command == R else -1
-        if self.switched and self.condition == "reversal":
-            direction = -direction
-        if self.condition == "delay":
-            moves, self._pending = self._pending, 0
-            if self._rng.random() < self.delay_prob:
-                self._pending = direction
-            else:
-                moves += direction
-            self._turn(moves * BIN_DEG)
-        elif self.condition == "error":
-            self._turn(direction * (BIN_DEG + self._rng.uniform(-self.error_deg, self.error_deg)))
-        elif self.condition == "hardstop":
-            target = self.bin + direction
-            if 0 <= target < N_BINS:  # else the move would cross the stop at 0 degrees
-                self.angle_deg = (target + 0.5) * BIN_DEG
-        else:
-            self._turn(direction * BIN_DEG)
-        self.steps += 1
-        return self.label
-
-    def _turn(self, degrees: float) -> None:
-        self.angle_deg = math.fmod(self.angle_deg + degrees, FULL_TURN_DEG)
-        if self.angle_deg < 0.0:
-            self.angle_deg += FULL_TURN_DEG
-        if self.angle_deg >= FULL_TURN_DEG:
-            self.angle_deg = 0.0
-
-    def bin_of_label(self, label: int) -> int:
-        """The true bin the sensor reports as ``label`` now."""
-        if self.switched and self.condition == "scramble":
-            return int(np.flatnonzero(self._labels == label)[0])
-        return label - 1
-
-    def shortest(self, label: int) -> int:
-        """The fewest nominal moves from the current bin to the one reported as ``label``."""
-        gap = abs(self.bin_of_label(label) - self.bin)
-        return gap if self.condition == "hardstop" else min(gap, N_BINS - gap)
-
-
-def _check_pointer(condition: str, seed: int, error_deg: float, delay_prob: float) -> None:
-    if condition not in CONDITIONS:
-        raise InputError(f"pointer condition {condition!r} is unknown: use one of {', '.join(CONDITIONS)}")
-    if seed < 0:
-        raise InputError(f"seed must be an integer >= 0, not {seed}")
-    if not 0.0 <= error_deg <= MAX_ERROR_DEG or not 0.0 <= delay_prob <= 1.0:
-        raise InputError(f"error_deg must be in [0, {MAX_ERROR_DEG:g}] and delay_prob in [0, 1]")
-
-
-@dataclass(frozen=True)
-class PointerSymbols:
-    """The library symbols of the pointer's commands (``L``, ``R``) and labels 1..36."""
-
-    commands: tuple[int, int]
-    labels: tuple[int, ...]
-
-    @classmethod
-    def from_vocabulary(cls, vocabulary: Vocabulary) -> "PointerSymbols":
-        """Look the pointer channels up; the library must have been learned from the pointer."""
-        commands = [vocabulary.get_symbol(COMMAND_CHANNEL, name) for name in COMMAND_NAMES]
-        labels = [vocabulary.get_symbol(POSITION_CHANNEL, k) for k in range(1, N_BINS + 1)]
-        if None in commands or None in labels:
-            raise InputError(f"the library's vocabulary lacks {COMMAND_CHANNEL} L/R or "
-                             f"{POSITION_CHANNEL} 1..{N_BINS}: learn it from pointer logs")
-        return cls(tuple(commands), tuple(labels))
-
-    def label_of(self, symbol: int) -> int:
-        """The label of a position symbol."""
-        return self.labels.index(symbol) + 1
+AGENTS = ("slearn", "count-model", "goal-q", "q-one-goal")
+EXTRA_AGENTS = ("true-model",)
+LABELS = {"slearn": "slearn", "count-model": "count model (optimistic VI)",
+          "goal-q": "goal-conditioned Q", "q-one-goal": "Q, one goal (paper)",
+          "true-model": "VI on the true model"}
 
 
 @dataclass(frozen=True)
@@ -171,44 +53,60 @@ class ControlConfig:
     """One closed-loop run.
 
     Attributes:
-        condition: pointer condition.
-        goals: number of random goals (ignored when ``goal`` is set: one goal).
-        seed: seed of everything (offline trials, pointer, goals).
+        env: ``pointer:CONDITION`` or ``gymnasium:ID``.
+        env_args: keyword arguments of the environment, as ``(name, value)`` pairs.
+        goals: number of goals (random ones unless ``goal`` is given).
+        seed: seed of everything (exploration, environments, goals, agents).
         budget: steps allowed per goal.
-        goal: a fixed goal label instead of random ones.
-        switch_goal: for ``reversal``/``scramble``, the goal at which the world changes
-            (default: halfway).
+        goal: a fixed goal: any of these observations (pursued ``goals`` times in a row
+            when ``repeat_goal``, else once).
+        repeat_goal: pursue ``goal`` ``goals`` times (Taxi: deliver passenger after passenger).
+        switch_goal: for ``reversal``/``scramble``, the goal at which the world changes.
         blocks: goals are reported in this many blocks.
-        trials: random trials learned offline when no library is given (and the
-            Q-learner's exploration data).
-        error_deg, delay_prob: pointer parameters.
-        qlearning: run the Q-learning baseline too.
-        planner: planner settings.
+        trials: random exploration steps shared by every agent.
+        agents: which agents run, slearn first.
+        planner: slearn's planner settings (default: the defaults, searching ``budget``
+            steps ahead, since a goal further away could not be reached anyway).
     """
 
-    condition: str
+    env: str = "pointer:simple"
+    env_args: tuple = ()
     goals: int = 100
     seed: int = 0
     budget: int = DEFAULT_BUDGET
-    goal: int | None = None
+    goal: tuple[int, ...] | None = None
+    repeat_goal: bool = False
     switch_goal: int | None = None
     blocks: int = 10
     trials: int = OFFLINE_TRIALS
-    error_deg: float = 5.0
-    delay_prob: float = 0.5
-    qlearning: bool = True
-    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    agents: tuple[str, ...] = AGENTS
+    planner: PlannerSettings | None = None
 
     def __post_init__(self) -> None:
-        _check_pointer(self.condition, self.seed, self.error_deg, self.delay_prob)
-        if self.goals < 1 or self.budget < 1 or self.blocks < 1 or self.trials < 1:
-            raise InputError("goals, budget, blocks and trials must be at least 1")
-        if self.goal is not None and not 1 <= self.goal <= N_BINS:
-            raise InputError(f"goal must be a position label 1..{N_BINS}, not {self.goal}")
+        if self.seed < 0:
+            raise InputError(f"seed must be an integer >= 0, not {self.seed}")
+        if self.goals < 1 or self.budget < 1 or self.blocks < 1 or self.trials < 0:
+            raise InputError("goals, budget and blocks must be at least 1, trials at least 0")
+        unknown = set(self.agents) - set(AGENTS) - set(EXTRA_AGENTS)
+        if unknown or not self.agents:
+            raise InputError(f"agents are {', '.join(AGENTS + EXTRA_AGENTS)}, not {', '.join(sorted(unknown))}")
+        if self.goal is not None and not self.goal:
+            raise InputError("a given goal needs at least one observation")
+
+    @property
+    def planner_settings(self) -> PlannerSettings:
+        """The planner settings in force."""
+        return self.planner or PlannerSettings(horizon=self.budget)
 
     @property
     def n_goals(self) -> int:
-        return 1 if self.goal is not None else self.goals
+        return self.goals if self.goal is None or self.repeat_goal else 1
+
+    @property
+    def condition(self) -> str | None:
+        """The pointer condition, ``None`` for other environments."""
+        kind, _, name = self.env.partition(":")
+        return name if kind == "pointer" else None
 
     @property
     def switch_at(self) -> int | None:
@@ -217,26 +115,25 @@ class ControlConfig:
             return None
         return self.n_goals // 2 if self.switch_goal is None else self.switch_goal
 
-    @property
-    def offline_condition(self) -> str:
-        """Offline trials see the world before any switch."""
-        return "simple" if self.condition in SWITCHING else self.condition
+    def make_env(self):
+        """A fresh environment (same seed: every agent meets the same world)."""
+        return make_env(self.env, dict(self.env_args), self.seed)
 
 
 @dataclass(frozen=True)
 class GoalOutcome:
-    """One goal: where it started, the fewest moves possible, what it took."""
+    """One goal: where it started, the fewest steps possible (``None``: unknown), what it took."""
 
-    goal: int
+    goal: tuple[int, ...]
     start: int
-    shortest: int
+    shortest: int | None
     steps: int
     reached: bool
     explored: int = 0
 
     def within(self, factor: float) -> bool:
-        """Reached in at most ``factor`` times the fewest moves."""
-        return self.reached and self.steps <= factor * self.shortest
+        """Reached in at most ``factor`` times the fewest steps."""
+        return self.reached and self.shortest is not None and self.steps <= factor * self.shortest
 
 
 @dataclass(frozen=True)
@@ -245,80 +142,87 @@ class Summary:
 
     goals: int
     success: float
-    within_1_1x: float
+    within_1_05x: float
     within_2x: float
     within_3x: float
     steps_ratio: float
     mean_steps: float
-    mean_shortest: float
     explored_steps: int
 
     @classmethod
     def of(cls, outcomes: list[GoalOutcome]) -> "Summary":
-        real = [o for o in outcomes if o.shortest > 0]
+        real = [o for o in outcomes if o.shortest != 0 and o.steps + (not o.reached) > 0]
         reached = [o for o in real if o.reached]
         n = len(real) or math.nan  # no goal to reach: rates are undefined
-        ratio = float(np.mean([o.steps / o.shortest for o in reached])) if reached else math.nan
-        return cls(len(real), len(reached) / n, sum(o.within(1.1) for o in real) / n,
+        sized = [o for o in reached if o.shortest]
+        ratio = float(np.mean([o.steps / o.shortest for o in sized])) if sized else math.nan
+        return cls(len(real), len(reached) / n, sum(o.within(1.05) for o in real) / n,
                    sum(o.within(2) for o in real) / n, sum(o.within(3) for o in real) / n, ratio,
                    float(np.mean([o.steps for o in reached])) if reached else math.nan,
-                   float(np.mean([o.shortest for o in reached])) if reached else math.nan,
                    sum(o.explored for o in real))
 
 
 @dataclass(frozen=True)
 class Block:
-    """One block of consecutive goals (slearn's results), and the library size after it."""
+    """One block of consecutive goals."""
 
     first_goal: int
     summary: Summary
-    patterns: int
     after_switch: bool
 
 
 @dataclass(frozen=True)
-class QLearningResult:
-    """The baseline: success toward the goal it was trained for, then on the new goals."""
+class AgentResult:
+    """One agent's run over the goals."""
 
-    trained_goal: int
-    trained_goal_success: float
-    new_goals: Summary
+    name: str
+    label: str
+    summary: Summary
+    blocks: list[Block]
+    outcomes: list[GoalOutcome]
+    ms_per_step: float
 
 
-@dataclass(frozen=True)
+@dataclass
 class Trace:
-    """What the slearn pointer did, step by step (for recording)."""
+    """What slearn's environment did, step by step (for recording)."""
 
-    start_label: int
-    start_angle_deg: float
-    commands: list[int]
-    labels: list[int]
-    angles_deg: list[float]
+    start: int
+    actions: list[int]
+    observations: list[int]
     goal_steps: list[int]
-    goal_labels: list[int]
+    goals: list[tuple[int, ...]]
 
 
 @dataclass(frozen=True)
 class ControlResult:
-    """One closed-loop run."""
+    """One closed-loop run: every agent on the same goals."""
 
     config: ControlConfig
+    env_name: str
     library_source: str
-    slearn: Summary
-    outcomes: list[GoalOutcome]
-    blocks: list[Block]
+    exploration_steps: int
+    goals: list[tuple[int, ...]]
+    agents: list[AgentResult]
     patterns_before: int
     patterns_after: int
-    steps: int
-    plan_ms_per_step: float
-    qlearning: QLearningResult | None
     trace: Trace
+
+    def agent(self, name: str) -> AgentResult | None:
+        """The result of agent ``name``, if it ran."""
+        return next((a for a in self.agents if a.name == name), None)
+
+    @property
+    def slearn(self) -> Summary | None:
+        found = self.agent("slearn")
+        return found.summary if found else None
 
     def to_dict(self) -> dict:
         """A JSON-ready dict (without the step trace)."""
         out = asdict(self)
         out.pop("trace")
-        out["config"]["planner"] = asdict(self.config.planner)
+        out["config"]["planner"] = asdict(self.config.planner_settings)
+        out["config"]["env_args"] = dict(self.config.env_args)
         return _finite(out)
 
 
@@ -327,249 +231,212 @@ def _finite(value):
         return None
     if isinstance(value, dict):
         return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
+    if isinstance(value, (list, tuple)):
         return [_finite(v) for v in value]
     return value
 
 
-def offline_library(config: ControlConfig) -> tuple[PatternLibrary, PointerRun]:
-    """A library learned from ``config.trials`` random trials (before any switch)."""
-    run = exploration_run(config)
-    library = PatternLibrary()
-    library.learn(run.to_episode())
-    return library, run
+def _rng(config: ControlConfig, stream: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(config.seed).spawn(8)[stream])
 
 
-def exploration_run(config: ControlConfig) -> PointerRun:
-    """The random trials both learners start from."""
-    return simulate(PointerConfig(config.offline_condition, config.trials, config.seed,
-                                  error_deg=config.error_deg, delay_prob=config.delay_prob))
+def exploration(config: ControlConfig) -> Transitions:
+    """The random steps every agent starts from (in the world before any switch)."""
+    return explore(config.make_env(), config.trials, _rng(config, 5))
 
 
-class _Agent(Protocol):
-    def act(self, goal: int) -> tuple[int, bool]: ...
-
-    def observe(self, command: int, label: int) -> None: ...
-
-
-class SlearnAgent:
-    """Plans every step from the library and learns every step into it."""
-
-    def __init__(self, library: PatternLibrary, symbols: PointerSymbols, label: int,
-                 settings: PlannerSettings) -> None:
-        self.library = library
-        self.symbols = symbols
-        self.planner = Planner(library, [(c,) for c in symbols.commands], settings)
-        self.history: deque = deque([((), (symbols.labels[label - 1],))], maxlen=settings.order + 2)
-        self.plan_seconds = 0.0
-        self.plans = 0
-        self.warm = False
-        library.learn(Episode.from_steps([((), (symbols.labels[label - 1],))]))
-
-    def act(self, goal: int) -> tuple[int, bool]:
-        """The command to issue toward ``goal`` and whether it was a curious one."""
-        began = time.perf_counter()
-        plan = self.planner.plan(list(self.history), self.symbols.labels[goal - 1])
-        if self.warm:  # the first call may compile the kernels
-            self.plan_seconds += time.perf_counter() - began
-            self.plans += 1
-        self.warm = True
-        return self.symbols.commands.index(plan.action[0]), plan.explore
-
-    def observe(self, command: int, label: int) -> None:
-        """Learn the step just taken."""
-        step = ((self.symbols.commands[command],), (self.symbols.labels[label - 1],))
-        self.library.learn(Episode.from_steps([step]), new_episode=False)
-        self.history.append(((self.symbols.commands[command],), (self.symbols.labels[label - 1],)))
-
-    def close(self) -> None:
-        """Nothing to do: every step was learned as it came."""
+def goal_candidates(env, transitions: Transitions) -> list[int]:
+    """Observations that may be drawn as goals (see the module docstring)."""
+    listed = getattr(env, "goal_candidates", lambda: None)()
+    if listed is not None and env.n_observations and getattr(env, "model", lambda: None)() is None:
+        return listed  # the pointer: every label
+    if listed is not None:
+        return [g for g in listed if env.shortest((g,)) is not None]
+    seen = set(int(o) for o in transitions.observations)
+    return sorted(seen - _failures(env, transitions))
 
 
-class QAgent:
-    """Acts on a Q-table and updates it with the current goal's reward."""
-
-    def __init__(self, learner: QLearner, label: int, rng: np.random.Generator,
-                 learn: bool = True) -> None:
-        self.learner = learner
-        self.label = label
-        self.rng = rng
-        self.learn = learn
-        self.goal = 0
-
-    def act(self, goal: int) -> tuple[int, bool]:
-        """The epsilon-greedy command from the current label (``goal`` is only remembered)."""
-        self.goal = goal
-        return self.learner.act(self.label - 1, self.rng), False
-
-    def observe(self, command: int, label: int) -> None:
-        """Update the Q-table with the current goal's reward (when learning)."""
-        if self.learn:
-            self.learner.update(self.label - 1, command, label - 1, self.goal - 1)
-        self.label = label
+def _failures(env, transitions: Transitions) -> set[int]:
+    """Observations after which an episode ended without reward (holes), by the true model."""
+    model = getattr(env, "model", lambda: None)()
+    if model is None:
+        return set()
+    return {int(s2) for s in model for a in model[s] for _, s2, reward, term in model[s][a]
+            if term and reward <= 0}
 
 
-def pursue(agent: _Agent, env: PointerEnv, goal: int, budget: int,
-           trace: Trace | None = None) -> GoalOutcome:
-    """Drive ``env`` toward ``goal`` for at most ``budget`` steps."""
-    start, shortest = env.label, env.shortest(goal)
-    steps = explored = 0
-    while env.label != goal and steps < budget:
-        command, curious = agent.act(goal)
-        label = env.step(command)
-        agent.observe(command, label)
-        steps += 1
-        explored += curious
-        if trace is not None:
-            trace.commands.append(command)
-            trace.labels.append(label)
-            trace.angles_deg.append(env.angle_deg)
-    return GoalOutcome(goal, start, shortest, steps, env.label == goal, explored)
-
-
-def goal_sequence(config: ControlConfig, first_label: int) -> list[int]:
-    """Random goal labels, each different from the one before (seeded)."""
+def goal_sequence(config: ControlConfig, candidates: list[int], first: int) -> list[tuple[int, ...]]:
+    """The goals: the given one, or random candidates, each different from the one before."""
     if config.goal is not None:
-        return [config.goal]
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(5)[4])
-    goals, last = [], first_label
+        return [tuple(config.goal)] * config.n_goals
+    if len(candidates) < 2:
+        raise InputError(f"{config.env}: fewer than two goal observations to choose from; "
+                         "explore longer (--trials) or give --goal")
+    rng = _rng(config, 4)
+    goals, last = [], first
     for _ in range(config.goals):
-        goal = int(rng.integers(1, N_BINS))
-        goal += goal >= last  # uniform over the other labels
-        goals.append(goal)
-        last = goal
+        pick = int(rng.integers(len(candidates) - (last in candidates)))
+        others = [c for c in candidates if c != last]
+        goals.append((others[pick],))
+        last = others[pick]
     return goals
+
+
+def pursue(agent, env, goal: tuple[int, ...], budget: int, trace: Trace | None = None) -> GoalOutcome:
+    """Drive ``env`` toward any observation of ``goal`` for at most ``budget`` steps."""
+    start, shortest = env.observation, _shortest(env, goal)
+    steps = explored = 0
+    while env.observation not in goal and steps < budget:
+        action = agent.act(env.observation, goal)
+        explored += bool(getattr(agent, "curious", False))
+        observation = env.step(action)
+        agent.observe(observation)
+        steps += 1
+        if trace is not None:
+            trace.actions.append(action)
+            trace.observations.append(observation)
+    return GoalOutcome(goal, start, shortest, steps, env.observation in goal, explored)
+
+
+def _shortest(env, goal) -> int | None:
+    method = getattr(env, "shortest", None)
+    return None if method is None else method(goal)
 
 
 def run_control(config: ControlConfig, library: PatternLibrary | None = None,
                 vocabulary: Vocabulary | None = None, library_source: str | None = None) -> ControlResult:
-    """Run the closed loop (and the Q-learning baseline) as ``config`` says.
+    """Explore, then run every agent of ``config`` on the same goals.
 
     Args:
         config: the run.
-        library: a library to start from (it keeps learning); default: learned offline.
-        vocabulary: the library's vocabulary (default: the pointer's).
+        library: a library slearn starts from (it learns the exploration too, and keeps
+            learning); default: a new one.
+        vocabulary: the library's vocabulary (default: the pointer's, or a new one).
         library_source: how the library was obtained, for the report.
     """
-    source = library_source or "given"
+    probe = config.make_env()
+    transitions = exploration(config)
+    goals = goal_sequence(config, goal_candidates(probe, transitions), probe.observation)
+    _check_goals(probe, goals)
     if library is None:
-        library, _ = offline_library(config)
-        source = f"learned offline from {config.trials} random {config.offline_condition} trials"
-    symbols = PointerSymbols.from_vocabulary(vocabulary or pointer_vocabulary())
-    env = _env(config)
-    goals = goal_sequence(config, env.label)
+        library = PatternLibrary()
+        library_source = f"learned from {config.trials} random steps"
+    if vocabulary is None:
+        vocabulary = pointer_vocabulary(getattr(probe, "bins", 36)) if config.condition else Vocabulary()
     before = len(library)
-    agent = SlearnAgent(library, symbols, env.label, config.planner)
-    trace = Trace(env.label, env.angle_deg, [], [], [], [], [])
-    outcomes, blocks = _run_goals(agent, env, goals, config, trace)
-    agent.close()
-    q = _run_qlearning(config, goals) if config.qlearning else None
-    return ControlResult(config, source, Summary.of(outcomes), outcomes, blocks, before, len(library),
-                         env.steps, 1000 * agent.plan_seconds / max(agent.plans, 1), q, trace)
+    trace = Trace(probe.observation, [], [], [], [])
+    results = [_run_agent(name, config, transitions, goals, library, vocabulary, trace)
+               for name in config.agents]
+    return ControlResult(config, probe.name, library_source or "given", len(transitions), goals,
+                         [r for r in results if r is not None], before, len(library), trace)
 
 
-def _env(config: ControlConfig, start_bin: int | None = None) -> PointerEnv:
-    return PointerEnv(config.condition, config.seed, error_deg=config.error_deg,
-                      delay_prob=config.delay_prob, start_bin=start_bin)
+def _check_goals(env, goals: list[tuple[int, ...]]) -> None:
+    for goal in goals[:1]:
+        for g in goal:
+            if not 0 <= g < env.n_observations or (isinstance(env, PointerEnv) and g < 1):
+                low = 1 if isinstance(env, PointerEnv) else 0
+                raise InputError(f"goal {g} is not an observation of {env.name}: use {low}..{env.n_observations - 1}")
 
 
-def _run_goals(agent: SlearnAgent, env: PointerEnv, goals: list[int], config: ControlConfig,
-               trace: Trace) -> tuple[list[GoalOutcome], list[Block]]:
+def _build_agent(name, config, env, transitions, library, vocabulary):
+    rng = _rng(config, 6)
+    n_s, n_a = env.n_observations, env.n_actions
+    if name == "slearn":
+        agent = SlearnAgent(library, vocabulary, env, config.planner_settings)
+        if len(transitions):
+            agent.learn(transitions)
+        return agent
+    if name == "count-model":
+        return CountModelAgent(n_s, n_a, transitions, rng)
+    if name == "goal-q":
+        return GoalQAgent(n_s, n_a, transitions, rng)
+    if name == "true-model":
+        return true_model_agent(env, rng) if hasattr(env, "model") else None
+    trained = int(_rng(config, 7).choice(goal_candidates(env, transitions) or [0]))
+    return SingleGoalQAgent(n_s, n_a, transitions, trained, rng)
+
+
+def _run_agent(name, config, transitions, goals, library, vocabulary, trace) -> AgentResult | None:
+    env = config.make_env()
+    if len(transitions):  # the agent's world continues from where exploration left it
+        _replay_actions(env, transitions)
+    agent = _build_agent(name, config, env, transitions, library, vocabulary)
+    if agent is None:
+        return None
     size = max(1, math.ceil(len(goals) / config.blocks))
-    outcomes: list[GoalOutcome] = []
-    blocks: list[Block] = []
+    outcomes, blocks = [], []
     for i, goal in enumerate(goals):
         if i == config.switch_at:
             env.switch()
-        trace.goal_steps.append(env.steps)
-        trace.goal_labels.append(goal)
-        outcomes.append(pursue(agent, env, goal, config.budget, trace))
+        if name == "slearn":
+            if i == 0:
+                trace.start = env.observation
+            trace.goal_steps.append(len(trace.actions))
+            trace.goals.append(goal)
+        outcomes.append(pursue(agent, env, goal, config.budget, trace if name == "slearn" else None))
         if (i + 1) % size == 0 or i + 1 == len(goals):
             first = (i // size) * size
             switch = config.switch_at
-            blocks.append(Block(first, Summary.of(outcomes[first:]), len(agent.library),
-                                switch is not None and first >= switch))
-    return outcomes, blocks
+            blocks.append(Block(first, Summary.of(outcomes[first:]), switch is not None and first >= switch))
+    plans = getattr(agent, "plans", 0)
+    ms = 1000 * agent.plan_seconds / plans if plans else math.nan
+    return AgentResult(name, LABELS[name], Summary.of(outcomes), blocks, outcomes, ms)
 
 
-def _run_qlearning(config: ControlConfig, goals: list[int]) -> QLearningResult:
-    """Train on the exploration trials for one goal; measure it there, then on ``goals``."""
-    run = exploration_run(config)
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(7)[6])
-    trained_goal = int(rng.integers(1, N_BINS + 1))
-    learner = QLearner(N_BINS, len(COMMAND_NAMES))
-    positions = run.positions.astype(np.int64) - 1
-    learner.train(positions[:-1], run.commands, positions[1:], trained_goal - 1)
-    trained = _trained_goal_success(copy.deepcopy(learner), config, trained_goal, rng)
-    env = _env(config)
-    agent = QAgent(learner, env.label, rng)
-    outcomes = []
-    for i, goal in enumerate(goals):
-        if i == config.switch_at:
-            env.switch()
-        outcomes.append(pursue(agent, env, goal, config.budget))
-    return QLearningResult(trained_goal, trained, Summary.of(outcomes))
+def _replay_actions(env, transitions: Transitions) -> None:
+    for action in transitions.actions:
+        env.step(int(action))
 
 
-def _trained_goal_success(learner: QLearner, config: ControlConfig, goal: int,
-                          rng: np.random.Generator) -> float:
-    """Success toward the trained goal from random starts (the world before any switch)."""
-    reached = 0
-    for episode in range(TRAINED_GOAL_EPISODES):
-        start = int(rng.integers(N_BINS - 1))
-        start += start >= goal - 1  # any bin but the goal's
-        env = PointerEnv(config.offline_condition, config.seed + episode, error_deg=config.error_deg,
-                         delay_prob=config.delay_prob, start_bin=start)
-        reached += pursue(QAgent(learner, env.label, rng, learn=False), env, goal, config.budget).reached
-    return reached / TRAINED_GOAL_EPISODES
-
-
-GOAL_CHANNEL = "/pointer/goal"
+METADATA_NAME = "slearn.control"
 GOAL_SCHEMA = {
-    "title": "slearn.pointer.Goal",
-    "description": "The position label the controller is steering the pointer to.",
+    "title": "slearn.control.Goal",
+    "description": "The observations the controller is steering to (any of them will do).",
     "type": "object",
-    "properties": {"goal": {"type": "integer", "minimum": 1, "maximum": N_BINS}},
+    "properties": {"goal": {"type": "array", "items": {"type": "integer"}}},
     "required": ["goal"],
 }
-METADATA_NAME = "slearn.control"
+_GENERIC = {
+    "action": {"title": "slearn.env.Action", "type": "object",
+               "properties": {"action": {"type": "integer"}}, "required": ["action"]},
+    "observation": {"title": "slearn.env.Observation", "type": "object",
+                    "properties": {"observation": {"type": "integer"}}, "required": ["observation"]},
+}
 
 
-def write_control_mcap(result: ControlResult, path: str | os.PathLike, *,
-                       overwrite: bool = False) -> int:
-    """Write the slearn pointer's run as one MCAP episode, atomically; returns messages written.
+def write_control_mcap(result: ControlResult, env, path: str | os.PathLike, *, overwrite: bool = False) -> int:
+    """Write slearn's run (exploration excluded) as one MCAP episode, atomically.
 
-    Channels are those of :mod:`slearn.recorders.record_pointer` plus ``/pointer/goal``
-    (``{"goal": 17}`` each time a goal is set), with the same timing (step ``i`` issues its
-    command at ``i * 100 ms`` and reads the position 50 ms later).
+    The action and observation channels are the environment's (the pointer's are those of
+    :mod:`slearn.recorders.record_pointer`), plus a goal channel (``{"goal": [17]}``
+    whenever a goal is set); step ``i`` acts at ``i * 100 ms`` and reads 50 ms later.
+    Returns the messages written.
     """
     trace = result.trace
+    pointer = isinstance(env, PointerEnv)
+    goal_topic = "/pointer/goal" if pointer else "/env/goal"
     with EpisodeWriter(path, overwrite=overwrite) as out:
         out.add_metadata(METADATA_NAME, _control_metadata(result))
-        channels = [out.register_channel(topic, schema["title"], schema, {"role": role})
-                    for topic, schema, role in _RECORDED]
-        command, position, angle, goal = channels
-        out.write(position, 0, {"position": trace.start_label})
-        out.write(angle, 0, {"angle_deg": trace.start_angle_deg})
-        for step, label in zip(trace.goal_steps, trace.goal_labels):
-            out.write(goal, step * TRIAL_NS, {"goal": label})
-        for i, (cmd, label, deg) in enumerate(zip(trace.commands, trace.labels, trace.angles_deg)):
-            out.write(command, i * TRIAL_NS, {"command": COMMAND_NAMES[cmd]})
-            out.write(position, i * TRIAL_NS + SENSE_DELAY_NS, {"position": label})
-            out.write(angle, i * TRIAL_NS + SENSE_DELAY_NS, {"angle_deg": deg})
-    return 2 + len(trace.goal_steps) + 3 * len(trace.commands)
-
-
-_RECORDED = ((COMMAND_CHANNEL, COMMAND_SCHEMA, "action"),
-             (POSITION_CHANNEL, POSITION_SCHEMA, "observation"),
-             (ANGLE_CHANNEL, ANGLE_SCHEMA, "ground_truth"),
-             (GOAL_CHANNEL, GOAL_SCHEMA, "goal"))
+        act_field, obs_field = ("command", "position") if pointer else ("action", "observation")
+        act_schema, obs_schema = (COMMAND_SCHEMA, POSITION_SCHEMA) if pointer else (
+            _GENERIC["action"], _GENERIC["observation"])
+        act = out.register_channel(env.action_channel, act_schema["title"], act_schema, {"role": "action"})
+        obs = out.register_channel(env.observation_channel, obs_schema["title"], obs_schema,
+                                   {"role": "observation"})
+        goal = out.register_channel(goal_topic, GOAL_SCHEMA["title"], GOAL_SCHEMA, {"role": "goal"})
+        out.write(obs, 0, {obs_field: trace.start})
+        for step, g in zip(trace.goal_steps, trace.goals):
+            out.write(goal, step * TRIAL_NS, {"goal": list(g)})
+        for i, (a, o) in enumerate(zip(trace.actions, trace.observations)):
+            out.write(act, i * TRIAL_NS, {act_field: env.action_value(a)})
+            out.write(obs, i * TRIAL_NS + TRIAL_NS // 2, {obs_field: o})
+    return 1 + len(trace.goal_steps) + 2 * len(trace.actions)
 
 
 def _control_metadata(result: ControlResult) -> dict[str, str]:
     config = result.config
-    return {"condition": config.condition, "seed": str(config.seed), "goals": str(config.n_goals),
-            "budget": str(config.budget), "switch_goal": str(config.switch_at),
-            "error_deg": repr(config.error_deg), "delay_prob": repr(config.delay_prob),
-            "library": result.library_source, "simulator": "slearn.control.PointerEnv",
-            "slearn_version": __version__}
+    return {"env": config.env, "env_args": repr(dict(config.env_args)), "seed": str(config.seed),
+            "goals": str(config.n_goals), "budget": str(config.budget),
+            "switch_goal": str(config.switch_at), "library": result.library_source,
+            "exploration_steps": str(result.exploration_steps), "slearn_version": __version__}

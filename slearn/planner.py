@@ -115,7 +115,7 @@ class PlannerSettings:
     max_states: int = 20_000
     half_life: float = 0.0
     optimism: float = 1.0
-    stale: float = 1.0
+    stale: float = 0.0
 
     @property
     def fade_rate(self) -> float:
