@@ -73,6 +73,23 @@ def explore(env, steps: int, rng: np.random.Generator) -> Transitions:
     return Transitions(observations, actions.astype(np.int64))
 
 
+def explore_directed(env, log: Transitions, guide: "CountModelAgent", steps: int) -> Transitions:
+    """Extend ``log`` by at most ``steps`` actions that ``guide`` (an optimistic model with no
+    goal) takes toward untried actions; stop once none is reachable."""
+    observations, actions = list(log.observations), list(log.actions)
+    for _ in range(steps):
+        guide.state = env.observation
+        values = guide.q_values(())[guide.state]
+        if values.max() <= 0.0:
+            break
+        best = np.flatnonzero(values >= values.max() - 1e-9)
+        guide.action = int(best[guide.rng.integers(len(best))])
+        actions.append(guide.action)
+        observations.append(env.step(guide.action))
+        guide.observe(observations[-1])
+    return Transitions(np.asarray(observations, np.int64), np.asarray(actions, np.int64))
+
+
 class SlearnAgent:
     """Plans every step from a pattern library and learns every step into it.
 
@@ -220,6 +237,8 @@ class CountModelAgent:
         self.discount = discount
         self.reset_after = reset_after
         self.learning = learn
+        self._support = None
+        self._totals = None
         self.state = 0
         self.action = 0
         self.resets = 0
@@ -228,9 +247,12 @@ class CountModelAgent:
         """``Q[s, a]``: the discounted value of reaching ``goal`` (goal observations are worth 1)."""
         n_s, n_a, _ = self.counts.shape
         flat = self.counts.reshape(n_s * n_a, n_s)
-        rows, cols = np.nonzero(flat)
-        totals = flat.sum(axis=1)
-        offsets = np.searchsorted(rows, np.arange(n_s * n_a + 1))
+        if self._support is None:  # rebuilt only when a new outcome appears or a pair resets
+            rows, cols = np.nonzero(flat)
+            self._support = (rows, cols, np.searchsorted(rows, np.arange(n_s * n_a + 1)))
+        rows, cols, offsets = self._support
+        totals = flat.sum(axis=1) if self._totals is None else self._totals
+        self._totals = totals
         goal_mask = np.zeros(n_s, np.bool_)
         goal_mask[[g for g in goal if 0 <= g < n_s]] = True
         return _value_iteration(offsets, cols.astype(np.int64), flat[rows, cols] / totals[rows],
@@ -253,7 +275,10 @@ class CountModelAgent:
                     and np.count_nonzero(row) == 1):
                 row[:] = 0.0
                 self.resets += 1
+            if row[s2] == 0:
+                self._support = None
             row[s2] += 1.0
+            self._totals = None
         self.state = int(observation)
 
 
@@ -305,6 +330,6 @@ def true_model_agent(env, rng: np.random.Generator, discount: float = 0.95) -> C
                 terminal[int(s2)] |= bool(term)
     counts[terminal] = np.asarray(start, float)[None, :]
     agent = CountModelAgent(n_s, n_a, None, rng, discount=discount, learn=False)
-    agent.counts = counts
+    agent.counts[:] = counts
     agent.name = "true-model"
     return agent

@@ -28,7 +28,7 @@ import numpy as np
 
 from slearn import __version__
 from slearn.agents import (CountModelAgent, GoalQAgent, SingleGoalQAgent, SlearnAgent, Transitions,
-                           explore, true_model_agent)
+                           explore, explore_directed, true_model_agent)
 from slearn.envs import PointerEnv, make_env  # noqa: F401  (PointerEnv: the pointer's adapter)
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
@@ -64,9 +64,11 @@ class ControlConfig:
         switch_goal: for ``reversal``/``scramble``, the goal at which the world changes.
         blocks: goals are reported in this many blocks.
         trials: random exploration steps shared by every agent.
+        directed: then at most this many steps of directed exploration (an optimistic
+            count model with no goal heads for the nearest action not tried yet; it stops
+            when every reachable action has been tried).
         agents: which agents run, slearn first.
-        planner: slearn's planner settings (default: the defaults, searching ``budget``
-            steps ahead, since a goal further away could not be reached anyway).
+        planner: slearn's planner settings (default: :attr:`planner_settings`).
     """
 
     env: str = "pointer:simple"
@@ -79,13 +81,14 @@ class ControlConfig:
     switch_goal: int | None = None
     blocks: int = 10
     trials: int = OFFLINE_TRIALS
+    directed: int = 0
     agents: tuple[str, ...] = AGENTS
     planner: PlannerSettings | None = None
 
     def __post_init__(self) -> None:
         if self.seed < 0:
             raise InputError(f"seed must be an integer >= 0, not {self.seed}")
-        if self.goals < 1 or self.budget < 1 or self.blocks < 1 or self.trials < 0:
+        if self.goals < 1 or self.budget < 1 or self.blocks < 1 or min(self.trials, self.directed) < 0:
             raise InputError("goals, budget and blocks must be at least 1, trials at least 0")
         unknown = set(self.agents) - set(AGENTS) - set(EXTRA_AGENTS)
         if unknown or not self.agents:
@@ -95,8 +98,12 @@ class ControlConfig:
 
     @property
     def planner_settings(self) -> PlannerSettings:
-        """The planner settings in force."""
-        return self.planner or PlannerSettings(horizon=self.budget)
+        """The planner settings in force: given, or searching ``budget`` steps ahead with
+        little prior doubt (0.1 pseudo-count) about what was seen; states hold one step of
+        history on the pointer (``delay`` hides a pending move) and none on Gymnasium
+        environments, whose observation is the whole state."""
+        return self.planner or PlannerSettings(horizon=self.budget, prior=0.1,
+                                               order=1 if self.condition else 0)
 
     @property
     def n_goals(self) -> int:
@@ -241,8 +248,14 @@ def _rng(config: ControlConfig, stream: int) -> np.random.Generator:
 
 
 def exploration(config: ControlConfig) -> Transitions:
-    """The random steps every agent starts from (in the world before any switch)."""
-    return explore(config.make_env(), config.trials, _rng(config, 5))
+    """The steps every agent starts from (in the world before any switch): ``trials``
+    random ones, then up to ``directed`` steps toward actions not yet tried."""
+    env = config.make_env()
+    random_steps = explore(env, config.trials, _rng(config, 5))
+    if not config.directed:
+        return random_steps
+    guide = CountModelAgent(env.n_observations, env.n_actions, random_steps, _rng(config, 3))
+    return explore_directed(env, random_steps, guide, config.directed)
 
 
 def goal_candidates(env, transitions: Transitions) -> list[int]:
@@ -287,15 +300,19 @@ def pursue(agent, env, goal: tuple[int, ...], budget: int, trace: Trace | None =
     start, shortest = env.observation, _shortest(env, goal)
     steps = explored = 0
     while env.observation not in goal and steps < budget:
-        action = agent.act(env.observation, goal)
+        _step(agent, env, goal, trace)
         explored += bool(getattr(agent, "curious", False))
-        observation = env.step(action)
-        agent.observe(observation)
         steps += 1
-        if trace is not None:
-            trace.actions.append(action)
-            trace.observations.append(observation)
     return GoalOutcome(goal, start, shortest, steps, env.observation in goal, explored)
+
+
+def _step(agent, env, goal: tuple[int, ...], trace: Trace | None) -> None:
+    action = agent.act(env.observation, goal)
+    observation = env.step(action)
+    agent.observe(observation)
+    if trace is not None:
+        trace.actions.append(action)
+        trace.observations.append(observation)
 
 
 def _shortest(env, goal) -> int | None:
@@ -320,7 +337,7 @@ def run_control(config: ControlConfig, library: PatternLibrary | None = None,
     _check_goals(probe, goals)
     if library is None:
         library = PatternLibrary()
-        library_source = f"learned from {config.trials} random steps"
+        library_source = f"learned from {len(transitions)} exploration steps"
     if vocabulary is None:
         vocabulary = pointer_vocabulary(getattr(probe, "bins", 36)) if config.condition else Vocabulary()
     before = len(library)
@@ -374,6 +391,8 @@ def _run_agent(name, config, transitions, goals, library, vocabulary, trace) -> 
                 trace.start = env.observation
             trace.goal_steps.append(len(trace.actions))
             trace.goals.append(goal)
+        if getattr(env, "done", False):  # an ended episode: its reset is not part of the next goal
+            _step(agent, env, goal, trace if name == "slearn" else None)
         outcomes.append(pursue(agent, env, goal, config.budget, trace if name == "slearn" else None))
         if (i + 1) % size == 0 or i + 1 == len(goals):
             first = (i // size) * size
