@@ -247,16 +247,16 @@ class CountModelAgent:
         """``Q[s, a]``: the discounted value of reaching ``goal`` (goal observations are worth 1)."""
         n_s, n_a, _ = self.counts.shape
         flat = self.counts.reshape(n_s * n_a, n_s)
-        if self._support is None:  # rebuilt only when a new outcome appears or a pair resets
+        if self._support is None:
             rows, cols = np.nonzero(flat)
-            self._support = (rows, cols, np.searchsorted(rows, np.arange(n_s * n_a + 1)))
-        rows, cols, offsets = self._support
-        totals = flat.sum(axis=1) if self._totals is None else self._totals
-        self._totals = totals
+            self._support = [cols.astype(np.int64), np.searchsorted(rows, np.arange(n_s * n_a + 1))]
+            self._totals = flat.sum(axis=1)
+        cols, offsets = self._support
+        rows = np.repeat(np.arange(n_s * n_a), np.diff(offsets))
         goal_mask = np.zeros(n_s, np.bool_)
         goal_mask[[g for g in goal if 0 <= g < n_s]] = True
-        return _value_iteration(offsets, cols.astype(np.int64), flat[rows, cols] / totals[rows],
-                                totals, goal_mask, n_a, self.discount).reshape(n_s, n_a)
+        return _value_iteration(offsets, cols, flat[rows, cols] / self._totals[rows], self._totals,
+                                goal_mask, n_a, self.discount).reshape(n_s, n_a)
 
     def act(self, observation: int, goal: Goal) -> int:
         """The best action by the model (ties: a random one)."""
@@ -275,12 +275,20 @@ class CountModelAgent:
                     and np.count_nonzero(row) == 1):
                 row[:] = 0.0
                 self.resets += 1
-            if row[s2] == 0:
                 self._support = None
-            row[s2] += 1.0
-            self._totals = None
+            self._count(self.state * self.counts.shape[1] + self.action, s2, row)
         self.state = int(observation)
 
+    def _count(self, sa: int, s2: int, row: np.ndarray) -> None:
+        """Add one sighting, keeping the sparse support in step (an insertion, not a rebuild)."""
+        if self._support is not None:
+            cols, offsets = self._support
+            if row[s2] == 0:
+                cols = np.insert(cols, offsets[sa + 1], s2)
+                offsets[sa + 1:] += 1
+                self._support[0] = cols
+            self._totals[sa] += 1.0
+        row[s2] += 1.0
 
 class SingleGoalQAgent:
     """Q-learning trained on the exploration log for one goal, then given new goals.

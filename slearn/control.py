@@ -321,7 +321,8 @@ def _shortest(env, goal) -> int | None:
 
 
 def run_control(config: ControlConfig, library: PatternLibrary | None = None,
-                vocabulary: Vocabulary | None = None, library_source: str | None = None) -> ControlResult:
+                vocabulary: Vocabulary | None = None, library_source: str | None = None,
+                warn=None) -> ControlResult:
     """Explore, then run every agent of ``config`` on the same goals.
 
     Args:
@@ -330,11 +331,16 @@ def run_control(config: ControlConfig, library: PatternLibrary | None = None,
             learning); default: a new one.
         vocabulary: the library's vocabulary (default: the pointer's, or a new one).
         library_source: how the library was obtained, for the report.
+        warn: called with a one-line warning (a given goal never observed while exploring:
+            the agents search for it, heading for what they have not tried).
     """
     probe = config.make_env()
     transitions = exploration(config)
     goals = goal_sequence(config, goal_candidates(probe, transitions), probe.observation)
     _check_goals(probe, goals)
+    if config.goal is not None and warn is not None and not set(config.goal) & set(transitions.observations.tolist()):
+        warn(f"slearn control: warning: goal {list(config.goal)} was never observed while exploring; "
+             "the agents search for it by trying what they have not tried")
     if library is None:
         library = PatternLibrary()
         library_source = f"learned from {len(transitions)} exploration steps"
