@@ -1,17 +1,19 @@
-"""Goal-seeking control: planning time per step and the acceptance table of issue 7.
+"""Goal-seeking control: slearn next to honest peers, on the pointer and on Gymnasium (issue 16).
 
-For each condition and seed, a library is learned offline from 10,000 random trials (the
-unchanged pointer for ``reversal``/``scramble``), then the pointer is steered in closed
-loop to random goals while the library keeps learning; the Q-learning baseline (trained
-for one goal on the same trials) gets the same goals. Targets:
+Every agent learns from the same exploration and gets the same goals, each in its own copy
+of the environment (same seed): slearn (pattern library + planner), a count model with
+value iteration (optimistic for untried actions, resets a pair the world contradicts),
+goal-conditioned Q-learning (every transition replayed for every goal), and Q-learning
+trained for one goal (the paper's argument, not a fair peer). Prints:
 
-- ``simple``, ``hardstop``: >= 99 % of goals reached, mean steps <= 1.1 x shortest;
-- ``error``: >= 95 % reached within 2 x shortest; ``delay``: >= 90 % within 3 x shortest;
-- ``reversal``: control recovers (last block after the switch: >= 99 % reached, steps
-  ratio <= 1.2); ``scramble`` is shown without a target.
+- pointer, six conditions x seeds: goals reached overall, in the block right after the
+  switch (reversal/scramble), within 1.05x / 2x the shortest path, per agent;
+- the 72-bin hard-stop pointer (exploration leaves the far end unvisited);
+- FrozenLake 4x4 / 8x8 (deterministic), CliffWalking: reached and within 1.05x;
+- slippery FrozenLake 8x8 against value iteration on the true model (``env.unwrapped.P``);
+- Taxi: passenger-delivered states (any of the four), passenger after passenger.
 
-Run: ``python bench/bench_control.py [--goals 300] [--seeds 3]`` (numba compiles once; the
-timings exclude it).
+Run: ``python bench/bench_control.py [--goals 300] [--seeds 3] [--only pointer|gym]``.
 """
 
 from __future__ import annotations
@@ -19,81 +21,107 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
-from slearn.control import ControlConfig, offline_library, run_control
-from slearn.planner import Planner
-from slearn.recorders.pointer import PointerConfig, simulate
+from slearn.control import AGENTS, ControlConfig, run_control
 
 CONDITIONS = ("simple", "hardstop", "error", "delay", "reversal", "scramble")
+NAMES = {"slearn": "slearn", "count-model": "count model", "goal-q": "goal-cond. Q",
+         "q-one-goal": "Q one goal", "true-model": "true-model VI"}
 
 
-def _passes(condition: str, result) -> str:
-    s = result.slearn
-    if condition in ("simple", "hardstop"):
-        ok = s.success >= 0.99 and s.steps_ratio <= 1.1
-    elif condition == "error":
-        ok = s.within_2x >= 0.95
-    elif condition == "delay":
-        ok = s.within_3x >= 0.90
-    elif condition == "reversal":
-        last = result.blocks[-1].summary
-        ok = last.success >= 0.99 and last.steps_ratio <= 1.2
-    else:
-        return "  -"
-    return "yes" if ok else " NO"
+def _cell(agent) -> str:
+    s = agent.summary
+    after = [b for b in agent.blocks if b.after_switch]
+    first = f" ({100 * after[0].summary.success:.0f})" if after else ""
+    return f"{100 * s.success:5.1f}{first} {100 * s.within_1_05x:5.1f} {100 * s.within_2x:5.1f}"
 
 
-def bench_planning(condition: str, calls: int = 2_000) -> None:
-    """Planning time per call from random histories toward random goals (library frozen)."""
-    library, _ = offline_library(ControlConfig(condition, seed=0))
-    planner = Planner(library, [(0,), (1,)])
-    run = simulate(PointerConfig(condition if condition not in ("reversal", "scramble") else "simple",
-                                 calls + 1, 99))
-    steps = run.to_episode().steps()
-    rng = np.random.default_rng(0)
-    times = np.empty(calls)
-    for i in range(calls):
-        goal = int(rng.integers(1, 37)) + 1
-        started = time.perf_counter()
-        planner.plan(steps[i: i + 2], goal)
-        times[i] = time.perf_counter() - started
-    print(f"plan   {condition:<9} {1000 * times.mean():6.2f} ms mean  {1000 * np.percentile(times, 99):6.2f} ms p99"
-          f"  ({len(library):,} patterns)")
+def _print(title: str, result, began: float) -> None:
+    cells = "  ".join(f"{_cell(a):>22}" for a in result.agents)
+    print(f"{title:<26} {cells}   {time.time() - began:5.1f} s", flush=True)
 
 
-def bench_acceptance(goals: int, seeds: int) -> None:
-    print(f"\nacceptance: {goals} random goals x {seeds} seeds per condition, budget 100 steps per goal")
-    print(f"{'condition':<9} {'seed':>4}  reached  <=1.1x    <=2x    <=3x  steps/shortest  "
-          f"Q trained  Q new goals  ms/step  pass")
+def _header(agents) -> None:
+    print(f"{'':<26} " + "  ".join(f"{NAMES[a]:>22}" for a in agents))
+    print(f"{'':<26} " + "  ".join(f"{'reached (after) 1.05x 2x':>22}" for _ in agents))
+
+
+def bench_pointer(goals: int, seeds: int) -> None:
+    print(f"\npointer: {goals} goals x seeds 0-{seeds - 1}, 10,000 random steps first, budget 100;"
+          " % reached (block after the switch), % within 1.05x and 2x the shortest")
+    _header(AGENTS)
     for condition in CONDITIONS:
         for seed in range(seeds):
-            result = run_control(ControlConfig(condition, goals=goals, seed=seed, blocks=10))
-            s, q = result.slearn, result.qlearning
-            print(f"{condition:<9} {seed:>4}  {100 * s.success:5.1f} %  {100 * s.within_1_1x:5.1f} %  "
-                  f"{100 * s.within_2x:5.1f} %  {100 * s.within_3x:5.1f} %  {s.steps_ratio:10.2f}      "
-                  f"{100 * q.trained_goal_success:5.1f} %     {100 * q.new_goals.success:5.1f} %   "
-                  f"{result.plan_ms_per_step:6.2f}   {_passes(condition, result)}")
-            if condition in ("reversal", "scramble") and seed == 0:
-                _curve(result)
+            began = time.time()
+            _print(f"{condition} seed {seed}", run_control(ControlConfig(f"pointer:{condition}", goals=goals,
+                                                                          seed=seed)), began)
+    for seed in range(seeds):
+        began = time.time()
+        config = ControlConfig("pointer:hardstop", (("bins", 72),), goals=goals, seed=seed)
+        _print(f"hardstop 72 bins seed {seed}", run_control(config), began)
 
 
-def _curve(result) -> None:
-    cells = [f"{'*' if b.after_switch else ' '}{100 * b.summary.success:.0f}%/{b.summary.steps_ratio:.2f}"
-             for b in result.blocks]
-    print(f"  curve (reached/steps ratio per block of {result.config.n_goals // len(result.blocks)} goals,"
-          f" * after the switch): {' '.join(cells)}")
+GYM = (
+    ("FrozenLake 4x4", "gymnasium:FrozenLake-v1", (("map_name", "4x4"), ("is_slippery", False)), 1_000, 5_000),
+    ("FrozenLake 8x8", "gymnasium:FrozenLake-v1", (("map_name", "8x8"), ("is_slippery", False)), 2_000, 10_000),
+    ("CliffWalking", "gymnasium:CliffWalking-v1", (), 2_000, 10_000),
+)
+
+
+def bench_gym(goals: int, seeds: int) -> None:
+    agents = ("slearn", "count-model", "goal-q", "q-one-goal")
+    print(f"\nGymnasium, deterministic: {goals} random goal cells (not holes, reachable) x seeds "
+          f"0-{seeds - 1}, budget 100; exploration: random steps, then directed steps until every "
+          "reachable action was tried")
+    _header(agents)
+    for title, env, args, trials, directed in GYM:
+        for seed in range(seeds):
+            began = time.time()
+            result = run_control(ControlConfig(env, args, goals=goals, seed=seed, trials=trials,
+                                               directed=directed, agents=agents))
+            _print(f"{title} seed {seed} ({result.exploration_steps} expl.)", result, began)
+    _slippery(goals, seeds)
+    _taxi(seeds)
+
+
+def _slippery(goals: int, seeds: int) -> None:
+    agents = ("slearn", "count-model", "goal-q", "true-model")
+    print(f"\nslippery FrozenLake 8x8: {goals} random goal cells, budget 100, 20,000 random steps "
+          "then directed; a hole sends the agent back to the start (the episode restarts)")
+    _header(agents)
+    for seed in range(seeds):
+        began = time.time()
+        result = run_control(ControlConfig("gymnasium:FrozenLake-v1", (("map_name", "8x8"), ("is_slippery", True)),
+                                           goals=goals, seed=seed, trials=20_000, directed=5_000, agents=agents))
+        _print(f"slippery 8x8 seed {seed}", result, began)
+
+
+def _taxi(seeds: int) -> None:
+    import gymnasium
+
+    taxi = gymnasium.make("Taxi-v4").unwrapped
+    delivered = tuple(int(taxi.encode(*taxi.locs[d], d, d)) for d in range(4))
+    agents = ("slearn", "count-model", "goal-q")
+    print(f"\nTaxi: 200 passengers delivered one after another (goal: the four delivered states), "
+          f"budget 200, 5,000 random steps then directed")
+    _header(agents)
+    for seed in range(seeds):
+        began = time.time()
+        result = run_control(ControlConfig("gymnasium:Taxi-v4", goal=delivered, repeat_goal=True, goals=200,
+                                           seed=seed, trials=5_000, directed=30_000, budget=200, agents=agents))
+        _print(f"Taxi seed {seed} ({result.exploration_steps} expl.)", result, began)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--goals", type=int, default=300)
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--only", choices=("pointer", "gym"), default=None)
     args = parser.parse_args()
-    run_control(ControlConfig("simple", goals=2, trials=500))  # compile
-    for condition in ("simple", "hardstop", "error", "delay"):
-        bench_planning(condition)
-    bench_acceptance(args.goals, args.seeds)
+    run_control(ControlConfig("pointer:simple", goals=2, trials=500))  # compile
+    if args.only != "gym":
+        bench_pointer(args.goals, args.seeds)
+    if args.only != "pointer":
+        bench_gym(args.goals, args.seeds)
 
 
 if __name__ == "__main__":

@@ -22,9 +22,16 @@ and searches it:
   saw; untried actions get their turn through curiosity (below). The
   probability reported is the library's probability of reaching the goal within the
   horizon with the plan's closed-loop policy.
-* **Curiosity**: when no known route reaches the goal, the action tried least often from
-  the current observation (the library's counts) is taken, so stale patterns are retested
-  after the world changes.
+* **Optimism**: when no known route reaches the goal, the search is run again with every
+  action never tried from a state worth the goal (``optimism``): the plan heads for the
+  nearest untried action or unvisited state (directed exploration, as R-max does), not
+  back and forth where it is. Only when nothing untried is in reach either, the action
+  tried least often from the current observation is taken (curiosity).
+* **Change**: after the library's change detector raised an alarm (:mod:`slearn.mixer`),
+  counts from before it weigh at most ``stale`` sightings (default none): trust shifts to
+  what was seen since, and what was not seen since is untried again; from then on untried
+  actions are worth the goal even when a known route exists, so the changed world is
+  relearned where it matters before old routes are trusted again.
 
 Closed loop: call :meth:`Planner.plan` again after every observed step. The planner is
 pure (no I/O); its search runs in compiled kernels over the tree's arrays. It plans in
@@ -96,8 +103,9 @@ class PlannerSettings:
         prior: pseudo-counts of the shorter context in a longer one's distribution.
         novelty: share of those pseudo-counts that stands for an unknown outcome.
         curiosity: value of an unknown outcome, as a share of the value of staying put.
-        optimism: value of an action never tried from a state (1: as good as the goal), so
-            exploration heads for the nearest untried action or unvisited state.
+        optimism: value of an action never tried from a state (1: as good as the goal) when
+            no known route reaches the goal, so exploration heads for the nearest untried
+            action or unvisited state instead of dithering; a known route is taken first.
         stale: after the library's change detector raised an alarm, counts from before it
             weigh at most this many sightings per outcome (trust shifts to recent steps).
         half_life: fade weights with this half-life in steps (0: never).
@@ -186,7 +194,12 @@ class Planner:
         s = self.settings
         index = (self.library.tree, self._root())
         graph = self._search_graph(index, start, action_tokens, self._goal_mask(goals))
-        q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity, s.optimism)
+        relearning = self._epoch() > 0  # after a change, what was not seen since is retested first
+        q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity,
+                           s.optimism if relearning else 0.0)
+        if s.optimism > 0.0 and reach[_best_action(q[: len(actions)], reach[: len(actions)])] < s.min_probability:
+            # no known route: only now are untried actions worth the goal (explore, then exploit)
+            q, reach = _values(graph, len(action_tokens), s.horizon, s.discount, s.curiosity, s.optimism)
         return self._plan_from(graph, q, reach, actions, action_tokens, index, start)
 
     def _root(self) -> int:
