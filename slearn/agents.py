@@ -104,6 +104,8 @@ class SlearnAgent:
 
     def __init__(self, library: PatternLibrary, vocabulary: Vocabulary, env,
                  settings: PlannerSettings | None = None) -> None:
+        if library._has_actions is None:  # an empty library: its first episode may be one reading
+            library._has_actions = True
         self.library = library
         self.vocabulary = vocabulary
         self.settings = settings or PlannerSettings()

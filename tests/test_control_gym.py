@@ -98,3 +98,15 @@ def test_cli_goal_out_of_range_or_never_seen():
     assert out.exit_code == 1 and "goal 16 is not an observation of FrozenLake-v1" in out.stderr
     out = CliRunner().invoke(main, [*base, "--goal", "15", "--trials", "3", "--agents", "slearn"])
     assert out.exit_code == 0 and "never observed while exploring" in out.stderr
+
+
+def test_the_readme_control_loop_runs_as_written():
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text.split("## Control\n", 1)[1].split("\n## ", 1)[0]
+    (example,) = re.findall(r"```python\n(.+?)\n```", section, flags=re.S)
+    namespace = {}
+    exec(compile(example, "README.md", "exec"), namespace)  # noqa: S102 - the README's own code
+    assert namespace["env"].observation == 15
