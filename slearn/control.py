@@ -41,6 +41,7 @@ from slearn.vocabulary import Vocabulary
 SWITCHING = ("reversal", "scramble")
 OFFLINE_TRIALS = 10_000
 DEFAULT_BUDGET = 100
+MAX_MODEL_CELLS = 50_000_000  # the count model's dense table: 400 MB of float64 at most
 AGENTS = ("slearn", "count-model", "goal-q", "q-one-goal")
 EXTRA_AGENTS = ("true-model",)
 LABELS = {"slearn": "slearn", "count-model": "count model (optimistic VI)",
@@ -254,6 +255,8 @@ def exploration(config: ControlConfig) -> Transitions:
     random_steps = explore(env, config.trials, _rng(config, 5))
     if not config.directed:
         return random_steps
+    if env.n_observations ** 2 * env.n_actions > MAX_MODEL_CELLS:
+        raise InputError(f"{env.name}: too many observations for directed exploration; use --trials only")
     guide = CountModelAgent(env.n_observations, env.n_actions, random_steps, _rng(config, 3))
     return explore_directed(env, random_steps, guide, config.directed)
 
@@ -370,6 +373,9 @@ def _build_agent(name, config, env, transitions, library, vocabulary):
         if len(transitions):
             agent.learn(transitions)
         return agent
+    if name in ("count-model", "true-model") and n_s * n_s * n_a > MAX_MODEL_CELLS:
+        raise InputError(f"{env.name}: {n_s} observations x {n_a} actions is too large for the "
+                         f"{name} peer's dense table; leave it out with --agents")
     if name == "count-model":
         return CountModelAgent(n_s, n_a, transitions, rng)
     if name == "goal-q":
