@@ -119,7 +119,7 @@ def test_control_record(tmp_path, monkeypatch):
     full_disk(monkeypatch, ".mcap")
     out = old_file(tmp_path, "run.mcap")
     assert_refused(run("control", "--condition", "simple", "--goals", "2", "--trials", "2000",
-                       "--no-qlearning", "--record", out, "--force"), tmp_path, out)
+                       "--agents", "slearn", "--record", out, "--force"), tmp_path, out)
 
 
 @pytest.mark.parametrize("suffix", ["README.md", "SHA256SUMS"])
@@ -177,7 +177,7 @@ def test_a_read_only_folder_is_one_line_for_every_writer(pointer, tmp_path, monk
              ("replay", library, log, "--write-mcap", out / "a.mcap", "-q"),
              ("replay", library, log, "--plot", out / "a.png", "-q"),
              ("info", log, "--suggest-spec", out / "spec.toml"),
-             ("control", "--condition", "simple", "--goals", "1", "--trials", "1000", "--no-qlearning",
+             ("control", "--condition", "simple", "--goals", "1", "--trials", "1000", "--agents", "slearn",
               "--record", out / "run.mcap")]
     out.mkdir()
     read_only(monkeypatch)

@@ -74,7 +74,7 @@ def test_merge_replay_info_and_record_refuse_their_inputs(pointer, tmp_path):
         ("replay", library, log, "--report", log, "--force", "-q"),
         ("info", log, "--suggest-spec", log, "--force"),
         ("control", "--condition", "simple", "--goals", "1", "--library", library, "--record", library,
-         "--force", "--no-qlearning"),
+         "--force", "--agents", "slearn"),
     ]
     for args in cases:
         assert "is also an input" in one_line(run(*args)), args

@@ -25,7 +25,7 @@ EXIT_BELOW_THRESHOLD = 4
 # neither. The summaries ``--help`` lists are kept here so that listing imports nothing;
 # a test checks them against each command's own help.
 _COMMANDS = {
-    "control": "Steer the simulated pointer to random goals in closed loop, learning as it goes.",
+    "control": "Steer a discrete system to goal observations in closed loop, next to honest peers.",
     "datasets": "Named, reproducible datasets (MCAP episodes, a card and a spec each).",
     "demo": "Record the pointer's six conditions, learn them online, and print Figure 2.",
     "info": "Show the header, time span, channels, rates and every field of logs (MCAP files, "

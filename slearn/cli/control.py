@@ -57,8 +57,11 @@ from slearn.recorders.pointer import CONDITIONS
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON document.")
 def command(env_spec, env_args, condition, library_path, goals, goal, repeat_goal, seed, budget, blocks,
             switch_goal, trials, directed, agents, order, half_life, record_path, force, as_json):
-    """Steer a discrete system to goal observations in closed loop, learning as it goes,
-    next to goal-conditioned Q-learning and an optimistic count model on the same exploration."""
+    """Steer a discrete system to goal observations in closed loop, next to honest peers.
+
+    Every agent learns from the same exploration: slearn, an optimistic count model,
+    goal-conditioned Q-learning, and Q-learning trained for one goal (the paper's argument).
+    """
     if (env_spec is None) == (condition is None):
         raise click.UsageError("give --env or --condition (pointer shorthand), not both or neither")
     if repeat_goal and not goal:
