@@ -101,8 +101,8 @@ def _taxi(seeds: int) -> None:
     taxi = gymnasium.make("Taxi-v4").unwrapped
     delivered = tuple(int(taxi.encode(*taxi.locs[d], d, d)) for d in range(4))
     agents = ("slearn", "count-model", "goal-q")
-    print(f"\nTaxi: 200 passengers delivered one after another (goal: the four delivered states), "
-          f"budget 200, 5,000 random steps then directed")
+    print("\nTaxi: 200 passengers delivered one after another (goal: the four delivered states), "
+          "budget 200, 5,000 random steps then directed")
     _header(agents)
     for seed in range(seeds):
         began = time.time()

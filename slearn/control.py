@@ -29,7 +29,7 @@ import numpy as np
 from slearn import __version__
 from slearn.agents import (CountModelAgent, GoalQAgent, SingleGoalQAgent, SlearnAgent, Transitions,
                            explore, explore_directed, true_model_agent)
-from slearn.envs import PointerEnv, make_env  # noqa: F401  (PointerEnv: the pointer's adapter)
+from slearn.envs import PointerEnv, make_env
 from slearn.errors import InputError
 from slearn.library import PatternLibrary
 from slearn.planner import PlannerSettings
