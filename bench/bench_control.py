@@ -85,13 +85,13 @@ def bench_gym(goals: int, seeds: int) -> None:
 
 def _slippery(goals: int, seeds: int) -> None:
     agents = ("slearn", "count-model", "goal-q", "true-model")
-    print(f"\nslippery FrozenLake 8x8: {goals} random goal cells, budget 100, 20,000 random steps "
+    print(f"\nslippery FrozenLake 8x8: {goals} random goal cells, budget 100, 100,000 random steps "
           "then directed; a hole sends the agent back to the start (the episode restarts)")
     _header(agents)
     for seed in range(seeds):
         began = time.time()
         result = run_control(ControlConfig("gymnasium:FrozenLake-v1", (("map_name", "8x8"), ("is_slippery", True)),
-                                           goals=goals, seed=seed, trials=20_000, directed=5_000, agents=agents))
+                                           goals=goals, seed=seed, trials=100_000, directed=5_000, agents=agents))
         _print(f"slippery 8x8 seed {seed}", result, began)
 
 
