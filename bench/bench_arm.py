@@ -7,7 +7,7 @@ dimensionality "full force". Per joint count and sensor layout (see
 
 - patterns: library size after all trials (every context of every joint's view);
   ``mem``: ``PatternLibrary.nbytes()``;
-  ``file``: the saved Parquet library (``slearn.storage``), and file bytes per pattern;
+  ``file``: the saved Parquet library (``slearn.io.library_file``), and file bytes per pattern;
 - ``conceivable``: log10 of the number of patterns a dense table up to the same length
   would need (``|O| * (|A| |O|)^m`` summed over ``m = 1..max_length``);
 - ``learn``: seconds for ``PatternLibrary.learn`` on the whole episode (compiled kernels
@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 from slearn_adapter import step_correct
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.arm import MAX_JOINTS, SENSORS, ArmConfig, arm_spec, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import N_BINS
 
 try:
-    from slearn.storage import save_library
+    from slearn.io.library_file import save_library
 except ImportError:  # storage not built: report in-memory bytes only
     save_library = None
 
@@ -52,7 +52,7 @@ def conceivable_log10(joints: int, sensors: str, max_length: int) -> float:
 
 
 def file_bytes(library: PatternLibrary, joints: int) -> int | None:
-    """Bytes of the library saved as Parquet, or ``None`` without ``slearn.storage``."""
+    """Bytes of the library saved as Parquet, or ``None`` without ``slearn.io.library_file``."""
     if save_library is None:
         return None
     with tempfile.TemporaryDirectory() as folder:

@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.stream import Episode
+from slearn.core.stream import Episode
 
 
 def pointer_stream(trials: int, seed: int = 0) -> Episode:

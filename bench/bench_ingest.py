@@ -6,8 +6,8 @@ Run: ``python bench/bench_ingest.py`` (add ``--rss`` for the memory figures; use
 Speed, per log, best of ``--runs`` runs, each figure also as a ratio to the anchor measured
 in the same run: the anchor is the mcap library's ``iter_decoded_messages`` over the spec's
 topics (JSON through ``json.loads``, ROS 2 through mcap-ros2-support); ``ingest`` is
-:func:`slearn.serialize.read_episodes` (read, decode, extract the spec's fields, symbolize,
-build the steps); ``learn`` is :func:`slearn.learn.learn_files` (fit, read, learn, save the
+:func:`slearn.io.serialize.read_episodes` (read, decode, extract the spec's fields, symbolize,
+build the steps); ``learn`` is :func:`slearn.jobs.learn.learn_files` (fit, read, learn, save the
 library; kernels warm). Logs: a JSON pointer log (``--trials`` trials, written in code) and
 the PR2 ROS 2 log repeated ``--copies`` times (its JointState and Odometry channels).
 
@@ -38,10 +38,10 @@ from mcap.writer import CompressionType, Writer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ingest_logs import write_pointer_log  # noqa: E402
-from slearn.learn import learn_files  # noqa: E402
-from slearn.serialize import read_episodes  # noqa: E402
-from slearn.spec import Spec, pointer_spec  # noqa: E402
-from slearn.vocabulary import Vocabulary  # noqa: E402
+from slearn.jobs.learn import learn_files  # noqa: E402
+from slearn.io.serialize import read_episodes  # noqa: E402
+from slearn.io.spec import Spec, pointer_spec  # noqa: E402
+from slearn.core.vocabulary import Vocabulary  # noqa: E402
 
 SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents[1:]
                if (p / "shared" / "data" / "mcap").is_dir()), Path("shared"))  # ../shared, or above
@@ -123,14 +123,14 @@ def bench(name: str, path: Path, spec: Spec, factory, runs: int, folder: Path,
     if quantile_spec is not None:
         t_fit, _ = best_of(lambda: slearn_learn(path, quantile_spec, folder / "q.parquet"), runs)
         figures.append(("slearn learn, quantile bins", t_fit))
-        import slearn.learn
+        import slearn.jobs.learn
 
-        one_read = slearn.learn.can_fit_in_one_pass
-        slearn.learn.can_fit_in_one_pass = lambda spec: False  # fit_spec, then a second read
+        one_read = slearn.jobs.learn.can_fit_in_one_pass
+        slearn.jobs.learn.can_fit_in_one_pass = lambda spec: False  # fit_spec, then a second read
         try:
             t_two, _ = best_of(lambda: slearn_learn(path, quantile_spec, folder / "q2.parquet"), runs)
         finally:
-            slearn.learn.can_fit_in_one_pass = one_read
+            slearn.jobs.learn.can_fit_in_one_pass = one_read
         figures.append(("  same, fitted in a read of its own", t_two))
     anchor = n_anchor / t_anchor
     print(f"{name}: {path.stat().st_size / 1e6:.1f} MB, {n_read:,} messages of the spec's "

@@ -1,7 +1,7 @@
 """Learning speed against its anchor: the same rule in C, and the same library byte for byte.
 
 Issue 12 asks learning to run at >= 1/3 of a C implementation of the same rule. The rule
-is what ``slearn learn`` does to an encoded episode (slearn/online.py with learning on):
+is what ``slearn learn`` does to an encoded episode (slearn/core/online.py with learning on):
 count every occurrence of every context of every view and train the mixer's weights and
 change detectors. ``bench/c/learn.c`` is that rule in plain C (compiled now with the system
 compiler; skipped without one). Both run on the same encoded steps; the library the C code
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slearn import context_tree, mixer
-from slearn.library import PatternLibrary
+from slearn.core import context_tree, mixer
+from slearn.core.library import PatternLibrary
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 

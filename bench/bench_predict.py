@@ -24,8 +24,8 @@ from collections import Counter
 
 import numpy as np
 
-from slearn.library import PatternLibrary
-from slearn.predictor import Predictor
+from slearn.core.library import PatternLibrary
+from slearn.core.predictor import Predictor
 from slearn.recorders.pointer import PointerConfig, simulate
 
 

@@ -7,7 +7,7 @@ start-up reported, and a scaling model written from the measured costs.
 Measured here, on the same logs (pointer, ``--condition``, one seed per log):
 
 * one process: ``learn_files`` (reading and learning; the reading share is timed apart);
-* ``--workers N``: Ray start-up, then ``learn_files`` with :class:`slearn.distributed.RayReader`
+* ``--workers N``: Ray start-up, then ``learn_files`` with :class:`slearn.jobs.distributed.RayReader`
   (logs read in tasks, learned in order by this process): the file must be byte-identical;
 * ``--workers N --merge-tree``: each log learned in a task, partials merged in a tree; a
   merge of two libraries of the final size is timed on its own, and the merged library's
@@ -30,18 +30,18 @@ import tempfile
 import time
 from pathlib import Path
 
-from slearn.cluster import ray_session
-from slearn.distributed import RayReader
-from slearn.learn import learn_files
-from slearn.merge import merge_libraries
-from slearn.merge_tree import learn_on_ray
+from slearn.jobs.cluster import ray_session
+from slearn.jobs.distributed import RayReader
+from slearn.jobs.learn import learn_files
+from slearn.jobs.merge import merge_libraries
+from slearn.jobs.merge_tree import learn_on_ray
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.evaluate import replay_logs
-from slearn.serialize import read_episodes
-from slearn.spec import pointer_spec
-from slearn.storage import load_library
-from slearn.vocabulary import Vocabulary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import pointer_spec
+from slearn.io.library_file import load_library
+from slearn.core.vocabulary import Vocabulary
 
 
 def _timed(function, *args, **kwargs):

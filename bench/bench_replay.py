@@ -24,7 +24,7 @@ import time
 from contextlib import redirect_stdout
 from pathlib import Path
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
@@ -80,7 +80,7 @@ def bench_predictor(trials: int, train_trials: int, online: bool) -> dict:
 def bench_command(trials: int, train_trials: int, folder: Path, annotate: bool) -> dict:
     """Predictions/s of the whole ``slearn replay`` command on a recorded log (second run)."""
     from slearn.cli import main
-    from slearn.learn import learn_files
+    from slearn.jobs.learn import learn_files
 
     library_path, log = folder / "library.parquet", folder / "held_out.mcap"
     if not library_path.exists():

@@ -3,7 +3,7 @@
 1. A library of about 10^6 patterns, learned from one long random stream over 10^4
    observation symbols (a noisy random walk on a ring of 10^4 positions, actions L/R).
 2. The six pointer conditions (10,000 trials, seed 0), each recorded to MCAP and learned
-   with ``slearn.learn.learn_files``, next to the paper's figure for the simple system
+   with ``slearn.jobs.learn.learn_files``, next to the paper's figure for the simple system
    (2155 patterns in 599 kB).
 
 Load times are warm (compiled kernels already loaded in the process: the pointer runs go
@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from slearn.learn import learn_files
-from slearn.library import PatternLibrary
+from slearn.jobs.learn import learn_files
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.storage import load_library, save_library
-from slearn.stream import Episode
-from slearn.vocabulary import Vocabulary
+from slearn.io.library_file import load_library, save_library
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import Vocabulary
 
 PAPER_PATTERNS = 2155
 PAPER_BYTES = 599_000

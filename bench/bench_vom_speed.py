@@ -24,7 +24,7 @@ from typing import Callable
 
 from peers import CountModel, load_c_vom, step_tokens
 from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.tokens import TokenTable
+from slearn.core.tokens import TokenTable
 from slearn_adapter import slearn_correct
 
 ORDERS = range(1, 7)

@@ -45,13 +45,13 @@ import zstandard  # noqa: E402
 
 import mcap_bytes as mb  # noqa: E402
 from slearn.errors import SlearnError  # noqa: E402
-from slearn.info import describe_log  # noqa: E402
-from slearn.library import PatternLibrary  # noqa: E402
-from slearn.serialize import read_episodes  # noqa: E402
-from slearn.spec import Spec, parse_channel_option  # noqa: E402
-from slearn.library_info import describe  # noqa: E402
-from slearn.storage import METADATA_KEY, load_library, save_library  # noqa: E402
-from slearn.vocabulary import Vocabulary  # noqa: E402
+from slearn.jobs.info import describe_log  # noqa: E402
+from slearn.core.library import PatternLibrary  # noqa: E402
+from slearn.io.serialize import read_episodes  # noqa: E402
+from slearn.io.spec import Spec, parse_channel_option  # noqa: E402
+from slearn.io.library_info import describe  # noqa: E402
+from slearn.io.library_file import METADATA_KEY, load_library, save_library  # noqa: E402
+from slearn.core.vocabulary import Vocabulary  # noqa: E402
 
 SPEC = Spec.from_dict({"mode": "change", "channel": [
     {"topic": "/a", "field": "v", "role": "observation", "width": 0.5},
@@ -202,7 +202,7 @@ def bomb_file(rng: random.Random, payloads: list) -> bytes:
 def base_library(folder: Path) -> Path:
     import numpy as np
 
-    from slearn.stream import Episode
+    from slearn.core.stream import Episode
 
     rng = np.random.default_rng(0)
     vocabulary = Vocabulary()

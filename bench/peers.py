@@ -1,7 +1,7 @@
 """The natural peers of slearn's predictor, on the same stream, online from empty.
 
-An episode (:class:`slearn.stream.Episode`) becomes tokens ``O A O A ... O`` through
-:meth:`slearn.tokens.TokenTable.tokenize` (``O`` the step's observation tuple, ``A`` its
+An episode (:class:`slearn.core.stream.Episode`) becomes tokens ``O A O A ... O`` through
+:meth:`slearn.core.tokens.TokenTable.tokenize` (``O`` the step's observation tuple, ``A`` its
 action tuple). Step ``i`` (``1..n``) predicts ``O_i`` from the history ``O_0 A_1 ... O_{i-1}``
 and the action just issued ``A_i``, then learns it (prequential: predict, then learn).
 
@@ -57,9 +57,9 @@ from typing import Callable, NamedTuple
 import numba
 import numpy as np
 
-from slearn.stream import Episode
-from slearn.tokens import TokenTable
-from slearn.vocabulary import Vocabulary
+from slearn.core.stream import Episode
+from slearn.core.tokens import TokenTable
+from slearn.core.vocabulary import Vocabulary
 
 _CONTEXT, _OUTCOME = 0, 1
 _PPM_METHODS = {"C": 1, "D": 2}

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from slearn.library import PatternLibrary
-from slearn.literal import DEFAULT_MAX_LENGTH as LITERAL_MAX_LENGTH
-from slearn.literal import LiteralLibrary
-from slearn.predictor import Predictor
-from slearn.stream import Episode
+from slearn.core.library import PatternLibrary
+from slearn.core.literal import DEFAULT_MAX_LENGTH as LITERAL_MAX_LENGTH
+from slearn.core.literal import LiteralLibrary
+from slearn.core.predictor import Predictor
+from slearn.core.stream import Episode
 
 
 def new_library(options: dict) -> PatternLibrary | LiteralLibrary:

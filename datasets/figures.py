@@ -16,7 +16,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
@@ -79,9 +79,9 @@ def arm_figures(max_joints: int, train_seeds: tuple[int, ...], heldout_seed: int
 
 def log_figures(train: str | os.PathLike, heldout: str | os.PathLike, spec: str | os.PathLike) -> str:
     """A Markdown table and notes: ``slearn learn`` on ``train``, frozen replay of ``heldout``."""
-    from slearn.learn import learn_files
+    from slearn.jobs.learn import learn_files
     from slearn.replay.evaluate import replay_logs
-    from slearn.spec import load_spec
+    from slearn.io.spec import load_spec
 
     with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the warnings that matter are in the result

@@ -47,10 +47,10 @@ from slearn.recorders.pointer import (BIN_DEG, COMMAND_NAMES, FULL_TURN_DEG, N_B
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.recorders.record_pointer import (COMMAND_SCHEMA, POSITION_SCHEMA, SENSE_DELAY_NS,
                                              TRIAL_NS, RecordSummary)
-from slearn.serialize import prepare_vocabulary
-from slearn.spec import Categorical, ChannelSpec, Spec
-from slearn.stream import Episode
-from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.io.serialize import prepare_vocabulary
+from slearn.io.spec import Categorical, ChannelSpec, Spec
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 
 MAX_JOINTS = 4
 SENSORS = ("moved", "all")

@@ -35,12 +35,12 @@ from types import TracebackType
 from typing import Any, Callable, Iterable
 
 from slearn import __version__
-from slearn.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
+from slearn.io.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
 from slearn.errors import InputError, SlearnError
-from slearn.files import write_atomic
+from slearn.io.files import write_atomic
 from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.spec import Categorical, ChannelSpec, Spec
-from slearn.vocabulary import ROLES
+from slearn.io.spec import Categorical, ChannelSpec, Spec
+from slearn.core.vocabulary import ROLES
 
 EVENT_SCHEMA_NAME = "slearn.Event"
 EVENT_SCHEMA = {
@@ -128,7 +128,7 @@ class EventFile:
         self.counts[channel] += 1
 
     def mark_episode(self, time_ns: int, episode: int, name: str = "") -> None:
-        """Start episode ``episode`` at ``time_ns`` (:mod:`slearn.episodes`): write the marker
+        """Start episode ``episode`` at ``time_ns`` (:mod:`slearn.io.episodes`): write the marker
         before the episode's first event."""
         if EPISODE_TOPIC not in self._ids:
             self._ids[EPISODE_TOPIC] = self._writer.register_channel(EPISODE_TOPIC, EPISODE_SCHEMA_NAME,
@@ -268,7 +268,7 @@ def events_spec(roles: dict[str, str], mode: str = "message", source: str = "<ev
 
 
 def spec_toml(spec: Spec, comment: str = "") -> str:
-    """A spec as TOML text that :func:`slearn.spec.load_spec` reads back to the same spec."""
+    """A spec as TOML text that :func:`slearn.io.spec.load_spec` reads back to the same spec."""
     data = spec.to_dict()
     lines = [f"# {line}".rstrip() for line in comment.splitlines()]
     lines += [f"{key} = {_toml_value(value)}" for key, value in data.items() if key != "channel"]

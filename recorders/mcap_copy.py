@@ -16,8 +16,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from slearn.bags import open_log
-from slearn.mcap_read import ChannelInfo, RawMessage
+from slearn.io.bags import open_log
+from slearn.io.mcap_read import ChannelInfo, RawMessage
 from slearn.recorders.mcap_episode import EpisodeWriter
 
 SOURCE_RECORD = "slearn.source"

@@ -1,7 +1,7 @@
 """Write one episode of JSON events to an MCAP file, atomically.
 
 :class:`EpisodeWriter` is a context manager around ``mcap.writer.Writer``. It writes to a
-temporary file next to the target (:func:`slearn.files.atomic_write`) and always calls
+temporary file next to the target (:func:`slearn.io.files.atomic_write`) and always calls
 ``Writer.finish()``, so the summary and footer are written. On a clean exit it fsyncs the
 file and renames it onto the target, so a reader never sees a half-written episode. A full
 disk or an unwritable folder is a one-line :class:`~slearn.errors.InputError`, and the
@@ -37,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 
 from slearn import __version__
 from slearn.errors import InputError, SlearnError
-from slearn.files import AtomicFile, atomic_write, write_error
+from slearn.io.files import AtomicFile, atomic_write, write_error
 
 _NS_PER_S = 1_000_000_000
 

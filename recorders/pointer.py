@@ -49,8 +49,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from slearn.errors import InputError
-from slearn.stream import Episode
-from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 
 CONDITIONS = ("simple", "hardstop", "scramble", "reversal", "error", "delay")
 EFFECTS = CONDITIONS[1:]

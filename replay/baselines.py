@@ -9,18 +9,18 @@
   adds to the same counts.
 * ``persistence``: the view's last observation again ("the value stays the same").
 
-The counts are those of a :class:`~slearn.library.PatternLibrary` of the library's shape
+The counts are those of a :class:`~slearn.core.library.PatternLibrary` of the library's shape
 that shares its tokens, so predictions compare with the library's one for one. With no
 context at all (nothing seen yet) ``frequency`` and ``markov`` abstain.
 """
 
 from __future__ import annotations
 
-from slearn.library import PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.online import Reports
-from slearn.tokens import ACTION, OBSERVATION
-from slearn.views import StepCodes
+from slearn.core.library import PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.core.online import Reports
+from slearn.core.tokens import ACTION, OBSERVATION
+from slearn.core.views import StepCodes
 
 FREQUENCY = "frequency"
 MARKOV = "markov"

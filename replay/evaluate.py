@@ -2,7 +2,7 @@
 
 :func:`iter_evaluation` is the core, a generator in the manner of river's
 ``iter_progressive_val_score``: it runs the library's predictor over each episode
-(:func:`slearn.online.run_online`; ``online=False`` keeps the library frozen, ``True``
+(:func:`slearn.core.online.run_online`; ``online=False`` keeps the library frozen, ``True``
 learns each step after predicting it, prequentially) and yields a :class:`Checkpoint`
 per episode. :func:`evaluate` collects the checkpoints into an :class:`Evaluation`;
 :func:`replay_logs` does the I/O around it (load the library, read the logs exactly as
@@ -34,24 +34,24 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from slearn.bags import is_log_path
+from slearn.io.bags import is_log_path
 from slearn.errors import DataWarning, InputError, TruncatedLogWarning
-from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.mcap_read import ReadReport
-from slearn.online import Reports
+from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.io.mcap_read import ReadReport
+from slearn.core.online import Reports
 from slearn.replay.baselines import Baselines
 from slearn.replay.honest import HonestScores
 from slearn.replay.metrics import (ChannelCounts, ChannelDecoder, Curve, Tally, channel_counts,
                                    channel_hits, confusions, learning_curve, score_steps)
 from slearn.replay.windows import data_window
-from slearn.slicing import TimeSlice, slice_from_dict
-from slearn.spec import Spec
-from slearn.stream import Episode
-from slearn.tokens import OBSERVATION, TokenTable, _intern
-from slearn.views import StepCodes
-from slearn.vocabulary import Vocabulary
-from slearn._jit import kernel
+from slearn.io.slicing import TimeSlice, slice_from_dict
+from slearn.io.spec import Spec
+from slearn.core.stream import Episode
+from slearn.core.tokens import OBSERVATION, TokenTable, _intern
+from slearn.core.views import StepCodes
+from slearn.core.vocabulary import Vocabulary
+from slearn.core._jit import kernel
 
 SCHEMA = "slearn.replay/2"
 """Name and version of the JSON document (:meth:`Evaluation.to_dict`)."""
@@ -506,8 +506,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
 
     Args:
         logs: held-out MCAP files, one episode each, in this order.
-        library: a library file written by :func:`slearn.storage.save_library`.
-        spec: a TOML spec (or a :class:`~slearn.spec.Spec`), to start from an empty
+        library: a library file written by :func:`slearn.io.library_file.save_library`.
+        spec: a TOML spec (or a :class:`~slearn.io.spec.Spec`), to start from an empty
             library (``online`` is then implied) or for a library saved without its spec.
         online: learn while replaying (prequential); else the library stays frozen.
         top_k, window: see :func:`iter_evaluation`.
@@ -518,8 +518,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         progress: progress on stderr.
         time_slice: replay only this slice of each log's time (``--split``: the held-out
             part); the baselines count each training log's slice the library learned.
-        reader: reads logs into episodes, as :func:`slearn.serialize.read_episodes` (the
-            default; :class:`slearn.distributed.RayReader` reads them on Ray).
+        reader: reads logs into episodes, as :func:`slearn.io.serialize.read_episodes` (the
+            default; :class:`slearn.jobs.distributed.RayReader` reads them on Ray).
 
     Data warnings (values outside a range, a spec without actions, too few events per
     channel) end up in the result's ``warnings``.
@@ -561,15 +561,15 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
 def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary, progress: bool,
           window: TimeSlice | dict[str, TimeSlice] | None = None, reader: Any = None
           ) -> Iterator[tuple[str, Episode, ReadReport]]:
-    from slearn.serialize import read_episodes
+    from slearn.io.serialize import read_episodes
 
     yield from (reader or read_episodes)(paths, spec, vocabulary, progress, window)
 
 
 def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
                   logs: list[str]) -> _Setup:
-    from slearn.spec import load_spec
-    from slearn.storage import load_library
+    from slearn.io.spec import load_spec
+    from slearn.io.library_file import load_library
 
     loaded = load_library(path)
     if loaded.spec is not None and spec_path is not None:
@@ -594,8 +594,8 @@ def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
 
 def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: list[str],
                    progress: bool) -> _Setup:
-    from slearn.serialize import fit_spec, prepare_vocabulary
-    from slearn.spec import load_spec
+    from slearn.io.serialize import fit_spec, prepare_vocabulary
+    from slearn.io.spec import load_spec
 
     if spec_path is None:
         raise InputError("no library: give a library file, or --spec FILE to start from an empty one")
@@ -624,7 +624,7 @@ def _training_logs(provenance: dict, library_dir: str) -> list[str]:
 
 
 def _unchanged(entry: Any, library_dir: str) -> str | None:
-    from slearn.bags import log_record
+    from slearn.io.bags import log_record
 
     if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
         return None

@@ -16,8 +16,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from slearn.tokens import TokenTable
-from slearn.vocabulary import OBSERVATION, Vocabulary
+from slearn.core.tokens import TokenTable
+from slearn.core.vocabulary import OBSERVATION, Vocabulary
 
 MODEL = "model"
 BASELINES = ("frequency", "markov", "persistence")

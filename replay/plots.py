@@ -16,7 +16,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from slearn.files import write_atomic
+from slearn.io.files import write_atomic
 from slearn.replay.evaluate import Evaluation
 
 OVERALL = "all"

@@ -7,7 +7,7 @@ import html
 import json
 import math
 import os
-from slearn.files import write_atomic
+from slearn.io.files import write_atomic
 from slearn.replay.evaluate import Evaluation
 from slearn.replay.metrics import BASELINES
 

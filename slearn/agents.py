@@ -6,7 +6,7 @@ Every agent has the same two calls, usable from any loop::
     observation = env.step(action)
     agent.observe(observation)              # learn the step just taken
 
-* :class:`SlearnAgent`: S-learning. A :class:`~slearn.library.PatternLibrary` learns every
+* :class:`SlearnAgent`: S-learning. A :class:`~slearn.core.library.PatternLibrary` learns every
   step; the :class:`~slearn.planner.Planner` searches it before every step.
 * Honest peers, trained on the same exploration transitions:
 
@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.planner import Planner, PlannerSettings
 from slearn.qlearning import QLearner
-from slearn.stream import Episode
-from slearn.vocabulary import Vocabulary
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import Vocabulary
 from slearn.peer_kernels import replay_for_goal as _replay, value_iteration as _value_iteration
 
 Goal = tuple[int, ...]

@@ -31,12 +31,12 @@ from slearn.agents import (CountModelAgent, GoalQAgent, SingleGoalQAgent, Slearn
                            explore, explore_directed, true_model_agent)
 from slearn.envs import PointerEnv, make_env
 from slearn.errors import InputError
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.planner import PlannerSettings
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import pointer_vocabulary
 from slearn.recorders.record_pointer import COMMAND_SCHEMA, POSITION_SCHEMA, TRIAL_NS
-from slearn.vocabulary import Vocabulary
+from slearn.core.vocabulary import Vocabulary
 
 SWITCHING = ("reversal", "scramble")
 OFFLINE_TRIALS = 10_000

@@ -21,11 +21,11 @@ from typing import Any, Hashable, Iterable, Mapping, Sequence
 import numpy as np
 
 from slearn.errors import ParameterError
-from slearn.library import DEFAULT_MAX_LENGTH, PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.predictor import Predictor
-from slearn.stream import Episode
-from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.core.predictor import Predictor
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 
 ITEM = "item"
 SCORINGS = ("adaptive", "literal")
@@ -98,7 +98,7 @@ class SequenceModel:
     # --- files --------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
         """Write the model as a library file (Parquet), atomically."""
-        from slearn.storage import save_library
+        from slearn.io.library_file import save_library
 
         if self.library is None:
             raise ParameterError("the model has learned nothing yet: nothing to save")
@@ -110,7 +110,7 @@ class SequenceModel:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SequenceModel":
         """A model saved by :meth:`save` (or any library file learned from logs)."""
-        from slearn.storage import load_library
+        from slearn.io.library_file import load_library
 
         loaded = load_library(path)
         model = cls(loaded.library.max_length, loaded.params.get("scoring", "adaptive"),

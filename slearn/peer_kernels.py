@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slearn._jit import kernel
+from slearn.core._jit import kernel
 
 
 @kernel

@@ -2,7 +2,7 @@
 
 "When a new goal is presented, the S-learning algorithm searches past sequences for series
 of actions that moved the system from its current state to the desired state." The
-planner reads a transition model off the library's context tree (:mod:`slearn.context_tree`)
+planner reads a transition model off the library's context tree (:mod:`slearn.core.context_tree`)
 and searches it:
 
 * **States** are short contexts: the current observation and the ``order`` steps before
@@ -27,7 +27,7 @@ and searches it:
   nearest untried action or unvisited state (directed exploration, as R-max does), not
   back and forth where it is. Only when nothing untried is in reach either, the action
   tried least often from the current observation is taken (curiosity).
-* **Change**: after the library's change detector raised an alarm (:mod:`slearn.mixer`),
+* **Change**: after the library's change detector raised an alarm (:mod:`slearn.core.mixer`),
   counts from before it weigh at most ``stale`` sightings (default none): trust shifts to
   what was seen since, and what was not seen since is untried again; from then on untried
   actions are worth the goal even when a known route exists, so the changed world is
@@ -47,12 +47,12 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from slearn import context_tree, hashtrie
-from slearn.hashtrie import child, child_or_add
-from slearn.library import PatternLibrary
-from slearn.stream import Step
-from slearn.tokens import ACTION, OBSERVATION
-from slearn._jit import helper, kernel
+from slearn.core import context_tree, hashtrie
+from slearn.core.hashtrie import child, child_or_add
+from slearn.core.library import PatternLibrary
+from slearn.core.stream import Step
+from slearn.core.tokens import ACTION, OBSERVATION
+from slearn.core._jit import helper, kernel
 
 _NO_STATE = -1
 

@@ -57,7 +57,7 @@ def view_streams(steps, view_of, has_actions):
 
     ``steps`` are ``(actions, observations)`` symbol tuples; ``view_of`` maps observation
     symbols to views. Yields ``(view, context so far, outcome or None)`` per view that
-    reported, after the step's action was appended (the spec of :mod:`slearn.views`).
+    reported, after the step's action was appended (the spec of :mod:`slearn.core.views`).
     """
     streams: dict[int, list] = defaultdict(list)
     held: dict[int, tuple] = {}

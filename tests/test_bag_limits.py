@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from slearn.bags import open_log
+from slearn.io.bags import open_log
 from slearn.cli import EXIT_TRUNCATED, main
 
 rosbags = pytest.importorskip("rosbags")

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from slearn.bags import log_record, open_log
+from slearn.io.bags import log_record, open_log
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.errors import InputError
 from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.serialize import read_episodes
-from slearn.spec import Spec
-from slearn.vocabulary import Vocabulary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import Spec
+from slearn.core.vocabulary import Vocabulary
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slearn import cdr
-from slearn.decode import MISSING, DecoderCache, iter_scalar_fields, parse_field_path
-from slearn.mcap_read import ChannelInfo, McapLog, SchemaInfo
+from slearn.io import cdr
+from slearn.io.decode import MISSING, DecoderCache, iter_scalar_fields, parse_field_path
+from slearn.io.mcap_read import ChannelInfo, McapLog, SchemaInfo
 
 SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
                if (p / "shared" / "data" / "mcap").is_dir()), None)

@@ -12,9 +12,9 @@ from slearn.agents import CountModelAgent, GoalQAgent, SlearnAgent, explore
 from slearn.control import ControlConfig, goal_sequence, run_control
 from slearn.envs import PointerEnv, parse_env_args
 from slearn.errors import InputError
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
-from slearn.stream import Episode
+from slearn.core.stream import Episode
 
 
 @pytest.mark.parametrize("condition", ["simple", "hardstop", "error", "delay"])

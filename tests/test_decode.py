@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from slearn.decode import (MISSING, DecodeError, DecoderCache, FieldPathError, decode_payload,
+from slearn.io.decode import (MISSING, DecodeError, DecoderCache, FieldPathError, decode_payload,
                            iter_scalar_fields, make_decoder, parse_field_path)
-from slearn.mcap_read import ChannelInfo, SchemaInfo, iter_messages
+from slearn.io.mcap_read import ChannelInfo, SchemaInfo, iter_messages
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
 ROSBAG2 = SHARED / "robot" / "rosbag2_tests" / "rosbag2_tests" / "resources" / "mcap"
@@ -171,7 +171,7 @@ def _both_ros2_decoders(channel):
     from mcap.records import Schema
     from mcap_ros2.decoder import DecoderFactory
 
-    from slearn.decode import _rosbags_cdr_decoder
+    from slearn.io.decode import _rosbags_cdr_decoder
     s = channel.schema
     slow = DecoderFactory().decoder_for("cdr", Schema(id=s.id, name=s.name, encoding=s.encoding, data=s.data))
     return _rosbags_cdr_decoder(channel), slow

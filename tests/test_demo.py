@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import main
-from slearn.demo import run_demo, windowed_percent
+from slearn.jobs.demo import run_demo, windowed_percent
 
 
 @pytest.fixture(scope="module")

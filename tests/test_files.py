@@ -1,4 +1,4 @@
-"""The atomic writer, output checks and build folders (slearn.files)."""
+"""The atomic writer, output checks and build folders (slearn.io.files)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import time
 
 import pytest
 
-from slearn import files
+from slearn.io import files
 from slearn.errors import InputError
-from slearn.files import (INCOMPLETE_MARKER, atomic_write, check_output, claim_folder, regular_file,
+from slearn.io.files import (INCOMPLETE_MARKER, atomic_write, check_output, claim_folder, regular_file,
                           release_folder, sweep_stale_temps, write_atomic)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from slearn import files
+from slearn.io import files
 from slearn.cli import main
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer

@@ -16,13 +16,13 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 import mcap_bytes as mb
 from slearn.errors import SlearnError
-from slearn.info import describe_log
-from slearn.library import PatternLibrary
-from slearn.serialize import read_episodes
-from slearn.spec import Spec, parse_channel_option
-from slearn.library_info import describe
-from slearn.storage import METADATA_KEY, load_library
-from slearn.vocabulary import Vocabulary
+from slearn.jobs.info import describe_log
+from slearn.core.library import PatternLibrary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import Spec, parse_channel_option
+from slearn.io.library_info import describe
+from slearn.io.library_file import METADATA_KEY, load_library
+from slearn.core.vocabulary import Vocabulary
 
 from test_storage import learned, save
 

@@ -15,7 +15,7 @@ from fixtures import POINTER_TOML, write_log
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.storage import load_library
+from slearn.io.library_file import load_library
 
 from test_library_header import edited, _set
 
@@ -158,7 +158,7 @@ def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(pointer, tmp_
 # --- cheap checks before long work ---------------------------------------------------------
 
 def test_a_bad_provenance_stops_resume_before_any_learning(pointer, tmp_path, monkeypatch):
-    import slearn.learn as learn
+    import slearn.jobs.learn as learn
 
     log, library = pointer
     bad = edited(library, tmp_path, _set("provenance.inputs.0.sha256", "nope"))
@@ -169,7 +169,7 @@ def test_a_bad_provenance_stops_resume_before_any_learning(pointer, tmp_path, mo
 
 @pytest.mark.parametrize("epoch", ["100000000000000000", "-1", "soon"])
 def test_a_bad_source_date_epoch_stops_before_learning(pointer, tmp_path, monkeypatch, epoch):
-    import slearn.learn as learn
+    import slearn.jobs.learn as learn
 
     monkeypatch.setattr(learn, "_learn_episodes", lambda *a: pytest.fail("learned before checking"))
     line = one_line(run("learn", "-q", pointer[0], "-o", tmp_path / "out.parquet",

@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import EXIT_TRUNCATED, main
-from slearn.info import describe_log, suggest_spec
-from slearn.spec import load_spec
+from slearn.jobs.info import describe_log, suggest_spec
+from slearn.io.spec import load_spec
 from fixtures import write_log
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from mcap.writer import CompressionType, Writer
 
-import slearn.ingest as ingest
-import slearn.learn as learn_module
-from slearn.learn import learn_files
-from slearn.mcap_read import ReadReport
-from slearn.serialize import RangeCounts, _log_episodes, prepare_vocabulary, read_episodes
-from slearn.slicing import TimeBound, TimeSlice
-from slearn.spec import Spec, pointer_spec
-from slearn.vocabulary import Vocabulary
+import slearn.io.ingest as ingest
+import slearn.jobs.learn as learn_module
+from slearn.jobs.learn import learn_files
+from slearn.io.mcap_read import ReadReport
+from slearn.io.serialize import RangeCounts, _log_episodes, prepare_vocabulary, read_episodes
+from slearn.io.slicing import TimeBound, TimeSlice
+from slearn.io.spec import Spec, pointer_spec
+from slearn.core.vocabulary import Vocabulary
 
 SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
                if (p / "shared" / "data" / "mcap").is_dir()), Path("/nonexistent"))
@@ -153,7 +153,7 @@ def test_pointer_pieces_are_complete_steps(tmp_path, monkeypatch):
         messages += [("/pointer/command", i * 100, json.dumps({"command": "LR"[i % 2]}).encode()),
                      ("/pointer/position", i * 100 + 50, json.dumps({"position": i % 36 + 1}).encode())]
     path = write_raw(tmp_path / "p.mcap", messages)
-    from slearn.serialize import read_pieces
+    from slearn.io.serialize import read_pieces
 
     pieces = list(read_pieces([path], pointer_spec(), Vocabulary()))
     assert len(pieces) > 5 and pieces[0][3] and pieces[-1][4]
@@ -211,8 +211,8 @@ def test_json_batches_never_merge_bad_payloads(tmp_path):
 @pytest.mark.parametrize("sample", [50, 1 << 20])
 def test_one_read_fits_and_learns_as_two_reads(tmp_path, monkeypatch, sample):
     """Quantile edges, vocabulary and library match fit_spec then read_pieces."""
-    import slearn.onepass as onepass
-    import slearn.serialize as serialize
+    import slearn.io.onepass as onepass
+    import slearn.io.serialize as serialize
 
     monkeypatch.setattr(serialize, "_QUANTILE_SAMPLE", sample)
     monkeypatch.setattr(ingest, "BATCH_MESSAGES", 97)
@@ -239,7 +239,7 @@ def test_one_read_fits_and_learns_as_two_reads(tmp_path, monkeypatch, sample):
 
 @pytest.mark.parametrize("topics", [None, ["/s", "/c"]])
 def test_compiled_record_walk_finds_what_the_python_walk_finds(tmp_path, monkeypatch, topics):
-    import slearn.mcap_read as mcap_read
+    import slearn.io.mcap_read as mcap_read
 
     path = write_raw(tmp_path / "a.mcap", busy_messages(300, 7, markers=True), chunk_size=4000)
     runs = []
@@ -251,7 +251,7 @@ def test_compiled_record_walk_finds_what_the_python_walk_finds(tmp_path, monkeyp
 
 
 def test_compiled_record_walk_leaves_damaged_blocks_to_the_python_walk(tmp_path, monkeypatch):
-    import slearn.mcap_read as mcap_read
+    import slearn.io.mcap_read as mcap_read
 
     messages = [("/s", i, b'{"v": 1}') for i in range(50)] + [("/s", 2**63, b'{"v": 2}')]
     path = write_raw(tmp_path / "late.mcap", messages, chunk_size=1 << 20)

@@ -10,13 +10,13 @@ import sys
 import textwrap
 from pathlib import Path
 
-from slearn import _jit
+from slearn.core import _jit
 
 # A kernel in one module calling a helper in another, and another library's cached kernel
 # decorated after them. The fingerprint is taken over the files of this small package.
-_HELPER = "from slearn._jit import helper\n\n@helper\ndef bump(x):\n    return x + {step}\n"
+_HELPER = "from slearn.core._jit import helper\n\n@helper\ndef bump(x):\n    return x + {step}\n"
 _KERNEL = textwrap.dedent("""
-    from slearn._jit import kernel
+    from slearn.core._jit import kernel
     from pkgx.a import bump
 
     @kernel
@@ -32,7 +32,7 @@ _CHILD = textwrap.dedent("""
     from pathlib import Path
     import numba, numpy as np
     sys.path.insert(0, sys.argv[1])
-    import slearn._jit as jit
+    import slearn.core._jit as jit
     covered = sys.argv[2].split(",")
     jit.kernel_sources = lambda: [Path(sys.argv[1], "pkgx", name) for name in covered]
     before = numba.config.CACHE_DIR
@@ -93,7 +93,7 @@ def test_other_librarys_kernels_keep_their_own_cache(tmp_path):
 
 def test_fingerprint_covers_every_kernel_module():
     names = {f"{p.parent.name}/{p.name}" for p in _jit.kernel_sources()}
-    assert {"slearn/online.py", "slearn/tokens.py", "slearn/views.py", "replay/evaluate.py"} <= names
+    assert {"slearn/core/online.py", "slearn/core/tokens.py", "slearn/core/views.py", "replay/evaluate.py"} <= names
     assert "slearn/errors.py" not in names
 
 

@@ -8,13 +8,13 @@ from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from naive import NaiveOccurrences
 from slearn.errors import ParameterError, SlearnError
-from slearn.library import PatternLibrary
-from slearn.merge import merge_libraries
-from slearn.storage import LoadedLibrary, library_params
-from slearn.stream import Episode
-from slearn.tokens import ACTION
-from slearn.vocabulary import ACTION as ACTION_ROLE
-from slearn.vocabulary import OBSERVATION, Vocabulary
+from slearn.core.library import PatternLibrary
+from slearn.jobs.merge import merge_libraries
+from slearn.io.library_file import LoadedLibrary, library_params
+from slearn.core.stream import Episode
+from slearn.core.tokens import ACTION
+from slearn.core.vocabulary import ACTION as ACTION_ROLE
+from slearn.core.vocabulary import OBSERVATION, Vocabulary
 
 
 def two_channel_vocabulary() -> Vocabulary:

@@ -10,10 +10,10 @@ from click.testing import CliRunner
 
 from slearn.cli import main
 from slearn.errors import LibraryFormatError
-from slearn.library_header import FORMAT_VERSION, HEADER, Field, validate_header
-from slearn.library_info import describe
-from slearn.merge import merge_files
-from slearn.storage import METADATA_KEY, load_library, read_info
+from slearn.io.library_header import FORMAT_VERSION, HEADER, Field, validate_header
+from slearn.io.library_info import describe
+from slearn.jobs.merge import merge_files
+from slearn.io.library_file import METADATA_KEY, load_library, read_info
 
 from fixtures import write_log
 from test_storage import learned, save
@@ -143,7 +143,7 @@ def test_a_header_that_is_not_json_or_not_an_object_is_refused(good, tmp_path, r
 
 
 def test_a_header_that_is_too_large_is_refused_before_parsing(good, tmp_path, monkeypatch):
-    import slearn.library_header as header
+    import slearn.io.library_header as header
     monkeypatch.setattr(header, "MAX_HEADER_BYTES", 100)
     assert "the header is" in one_line_error(load_library, good) and "(at most 100)" in one_line_error(load_library, good)
 
@@ -180,7 +180,7 @@ def test_a_folder_or_a_fifo_given_as_a_library_exits_1(tmp_path):
 
 def test_fields_of_later_versions_are_not_required_of_older_files():
     header = {**HEADER, "tables": Field("object", since=FORMAT_VERSION + 1)}
-    import slearn.library_header as module
+    import slearn.io.library_header as module
     doc = json.loads(json.dumps({"format": "slearn-library", "version": FORMAT_VERSION,
                                  "params": {"max_length": 3, "max_patterns": None},
                                  "library": {"clock": 0, "forgotten": 0, "patterns": 0, "channels": [],
@@ -202,7 +202,7 @@ def test_a_footer_that_mislabels_a_column_is_refused_without_crashing(good, tmp_
     data[element + 1] = 0x08  # FLOAT: pyarrow aborted the process reading row-group metadata
     bad = tmp_path / "mislabelled.parquet"
     bad.write_bytes(bytes(data))
-    check = ("import sys; from slearn.storage import load_library; from slearn.library_info import describe\n"
+    check = ("import sys; from slearn.io.library_file import load_library; from slearn.io.library_info import describe\n"
              "from slearn.errors import LibraryFormatError\n"
              "for f in (load_library, describe):\n"
              "    try: f(sys.argv[1])\n"

@@ -6,8 +6,8 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from naive import NaiveLibrary
-from slearn.literal import LiteralLibrary as PatternLibrary
-from slearn.stream import Episode
+from slearn.core.literal import LiteralLibrary as PatternLibrary
+from slearn.core.stream import Episode
 
 L, R = 0, 1
 

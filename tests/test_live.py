@@ -7,9 +7,9 @@ from mcap.reader import make_reader
 
 from slearn.errors import InputError, SlearnError
 from slearn.recorders.live import LiveRecorder, events_spec, spec_toml
-from slearn.serialize import read_episodes
-from slearn.spec import Bins, ChannelSpec, Spec, load_spec
-from slearn.vocabulary import Vocabulary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import Bins, ChannelSpec, Spec, load_spec
+from slearn.core.vocabulary import Vocabulary
 
 
 def _clock():

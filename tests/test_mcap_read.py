@@ -11,7 +11,7 @@ import pytest
 from mcap.writer import CompressionType, IndexType, Writer
 
 from slearn.errors import InputError, TruncatedLogWarning
-from slearn.mcap_read import McapLog, ReadReport, iter_messages
+from slearn.io.mcap_read import McapLog, ReadReport, iter_messages
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
 DERIVED = SHARED / "derived"
@@ -235,7 +235,7 @@ def test_random_corruption_never_escapes_as_a_traceback(tmp_path):
 # --- hostile chunks: bombs, sizes that lie, zero runs, memory limits ----------------------
 
 import mcap_bytes as mb  # noqa: E402
-from slearn import mcap_read  # noqa: E402
+from slearn.io import mcap_read  # noqa: E402
 
 
 def _read_bytes(tmp_path, data, name="x.mcap"):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
-from slearn.stream import Episode
-from slearn.tokens import TokenTable
+from slearn.core.stream import Episode
+from slearn.core.tokens import TokenTable
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.planner import Planner, PlannerSettings, distribution
 from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.stream import Episode
-from slearn.tokens import ACTION, OBSERVATION
+from slearn.core.stream import Episode
+from slearn.core.tokens import ACTION, OBSERVATION
 from test_literal import L, R, pointer_episode
 
 POS = 10  # position k is symbol k + 10 (see test_library.pointer_episode)

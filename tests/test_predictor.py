@@ -4,11 +4,11 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from naive import NaiveLibrary, naive_context_stats
-from slearn.library import PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.predictor import Predictor
+from slearn.core.library import PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.core.predictor import Predictor
 from slearn.recorders.pointer import pointer_vocabulary
-from slearn.stream import Episode
+from slearn.core.stream import Episode
 from test_literal import L, R, pointer_episode
 
 POS = 10  # position k is symbol k + 10 (see test_literal.pointer_episode)
@@ -124,7 +124,7 @@ def _brute_force(library, patterns, past, action):
 
 
 def _index_contents(index):
-    from slearn.hashtrie import path_tokens
+    from slearn.core.hashtrie import path_tokens
     buf = np.zeros(64, np.int32)
     contents = {}
     for node in range(1, int(index.trie.size[0])):
@@ -146,7 +146,7 @@ def _index_contents(index):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 4))
 def test_literal_index_kept_in_step_with_learning_equals_one_built_afresh(seed, max_length):
-    from slearn.context_index import index_library
+    from slearn.core.context_index import index_library
     rng = np.random.default_rng(seed)
     library = LiteralLibrary(max_length)
     for _ in range(3):

@@ -8,12 +8,12 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from slearn.errors import ParameterError
-from slearn.library import PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.predictor import Predictor
+from slearn.core.library import PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.core.predictor import Predictor
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
-from slearn.stream import Episode
-from slearn.views import UNKNOWN, StepCodes, new_view_state
+from slearn.core.stream import Episode
+from slearn.core.views import UNKNOWN, StepCodes, new_view_state
 
 
 def reference(library, steps, top_k, unknown_views=None):

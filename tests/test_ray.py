@@ -18,19 +18,19 @@ from click.testing import CliRunner
 
 from slearn.cli import main
 from slearn.errors import InputError
-from slearn.learn import learn_files
+from slearn.jobs.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.slicing import time_slice
-from slearn.spec import pointer_spec
-from slearn.storage import load_library
-from slearn.vocabulary import Vocabulary
+from slearn.io.slicing import time_slice
+from slearn.io.spec import pointer_spec
+from slearn.io.library_file import load_library
+from slearn.core.vocabulary import Vocabulary
 
 ray = pytest.importorskip("ray")
 
-from slearn.cluster import check_visible, require_ray  # noqa: E402
-from slearn.distributed import RayReader  # noqa: E402
+from slearn.jobs.cluster import check_visible, require_ray  # noqa: E402
+from slearn.jobs.distributed import RayReader  # noqa: E402
 
 
 @pytest.fixture(scope="module")

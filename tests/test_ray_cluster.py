@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import main
-from slearn.learn import learn_files
+from slearn.jobs.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
@@ -16,8 +16,8 @@ ray = pytest.importorskip("ray")
 
 from ray.cluster_utils import Cluster  # noqa: E402
 
-from slearn.cluster import ClusterError, ray_session  # noqa: E402
-from slearn.distributed import RayReader  # noqa: E402
+from slearn.jobs.cluster import ClusterError, ray_session  # noqa: E402
+from slearn.jobs.distributed import RayReader  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -11,16 +11,16 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
 from slearn.replay.evaluate import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
                                     iter_evaluation, replay_logs)
 from slearn.replay.windows import data_window
-from slearn.spec import pointer_spec
-from slearn.stream import Episode
-from slearn.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.io.spec import pointer_spec
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 from fixtures import POINTER_TOML
 
 
@@ -336,7 +336,7 @@ storage = pytest.importorskip("slearn.storage")
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     """Pointer logs (simple seeds 0-3, a reversal) and a library learned on seeds 0-2."""
-    from slearn.serialize import read_episodes
+    from slearn.io.serialize import read_episodes
 
     folder = tmp_path_factory.mktemp("replay")
     paths = {}
@@ -449,7 +449,7 @@ def test_truncated_log_scores_what_was_salvaged(logs, tmp_path):
 
 
 def test_a_changed_training_log_is_not_used_for_the_baselines(logs, tmp_path):
-    from slearn.serialize import read_episodes
+    from slearn.io.serialize import read_episodes
 
     copy = tmp_path / "train.mcap"
     shutil.copy(logs["simple0"], copy)
@@ -496,7 +496,7 @@ def test_relative_provenance_paths_are_found_next_to_the_library(logs, tmp_path,
 def test_step_times_match_the_steps_of_every_mode(tmp_path, mode, tick_ns):
     from dataclasses import replace
 
-    from slearn.serialize import iter_step_times, read_episodes
+    from slearn.io.serialize import iter_step_times, read_episodes
 
     path = tmp_path / "p.mcap"
     record_pointer(PointerConfig("simple", trials=200, seed=1), path)

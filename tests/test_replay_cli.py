@@ -8,12 +8,12 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED, main
-from slearn.library import PatternLibrary
+from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.serialize import read_episodes
-from slearn.spec import pointer_spec
-from slearn.vocabulary import Vocabulary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import pointer_spec
+from slearn.core.vocabulary import Vocabulary
 from fixtures import POINTER_TOML
 
 storage = pytest.importorskip("slearn.storage")

@@ -24,7 +24,7 @@ from slearn.cli import main
 from slearn.recorders.arm import ArmConfig, simulate_arm
 from slearn.recorders.pointer import BIN_DEG, PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
-from slearn.spec import load_spec
+from slearn.io.spec import load_spec
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from slearn.errors import SpecError, TruncatedLogWarning
-from slearn.serialize import fit_spec, read_episodes
-from slearn.spec import Spec, load_spec, pointer_spec
-from slearn.vocabulary import Vocabulary
+from slearn.io.serialize import fit_spec, read_episodes
+from slearn.io.spec import Spec, load_spec, pointer_spec
+from slearn.core.vocabulary import Vocabulary
 from fixtures import write_log
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
@@ -220,7 +220,7 @@ def test_rosbag2_service_events_and_wrong_format_are_clear_errors():
 
 
 def test_default_spec_is_the_pointer_spec_for_pointer_logs(tmp_path):
-    from slearn.serialize import default_spec
+    from slearn.io.serialize import default_spec
     pointer = write_log(tmp_path / "p.mcap", pointer_messages("R", [1, 2]))
     assert default_spec([pointer]) == pointer_spec()
     other = write_log(tmp_path / "o.mcap", MODES_LOG)
@@ -292,7 +292,7 @@ def test_values_outside_the_range_are_counted_and_clip_accepts_them(tmp_path):
 
 
 def test_episode_markers_split_one_file_into_episodes(tmp_path):
-    from slearn.episodes import EPISODE_TOPIC, split_episode_name
+    from slearn.io.episodes import EPISODE_TOPIC, split_episode_name
 
     messages = [("/s", 0, {"v": 9})]
     for k in range(3):
@@ -311,7 +311,7 @@ def test_episode_markers_split_one_file_into_episodes(tmp_path):
 
 def test_a_time_window_reads_part_of_each_log(tmp_path):
     from slearn.errors import InputError
-    from slearn.slicing import HELDOUT, time_slice
+    from slearn.io.slicing import HELDOUT, time_slice
 
     path = write_log(tmp_path / "w.mcap", [("/s", 1_000_000_000 + i * 100_000_000, {"v": i}) for i in range(10)])
     spec = Spec.from_dict({"channel": [{"topic": "/s", "field": "v", "role": "observation"}]})

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, strategies as st
 
 from slearn.errors import SpecError
-from slearn.spec import (Bins, Categorical, Spec, load_spec, parse_channel_option, pointer_spec,
+from slearn.io.spec import (Bins, Categorical, Spec, load_spec, parse_channel_option, pointer_spec,
                          spec_from_options)
-from slearn.vocabulary import Vocabulary
+from slearn.core.vocabulary import Vocabulary
 
 GOOD = """
 mode = "tick"
@@ -133,7 +133,7 @@ def test_shorthand():
 def test_pointer_spec_symbols():
     spec = pointer_spec()
     assert spec.mode == "message" and spec.topics() == ["/pointer/command", "/pointer/position"]
-    from slearn.serialize import prepare_vocabulary
+    from slearn.io.serialize import prepare_vocabulary
     vocabulary = prepare_vocabulary(spec, Vocabulary())
     assert vocabulary.get_symbol("/pointer/command", "L") == 0
     assert vocabulary.get_symbol("/pointer/command", "R") == 1
@@ -177,7 +177,7 @@ def test_missing_file(tmp_path):
 
 
 def test_resolve_spec(tmp_path):
-    from slearn.spec import resolve_spec
+    from slearn.io.spec import resolve_spec
     assert resolve_spec() is None
     path = _write(tmp_path, GOOD)
     assert resolve_spec(path).mode == "tick"
@@ -236,7 +236,7 @@ def test_bins_read_as_value_ranges_and_know_what_falls_outside():
 
 
 def test_the_vocabulary_labels_bins_as_value_ranges():
-    from slearn.serialize import prepare_vocabulary
+    from slearn.io.serialize import prepare_vocabulary
 
     spec = spec_from_options(["/j:p:observation:range=[0,360],count=36,unit=deg", "/c:d:action"])
     vocabulary = prepare_vocabulary(spec, Vocabulary())

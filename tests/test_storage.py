@@ -10,16 +10,16 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from slearn.errors import InputError, LibraryFormatError, SpecError
-from slearn.library import PatternLibrary
-from slearn.literal import LiteralLibrary
-from slearn.spec import Bins, Categorical, ChannelSpec, Spec
-from slearn.library_header import FORMAT_VERSION
-from slearn.library_info import describe
-from slearn.merge import merge_libraries
-from slearn.storage import METADATA_KEY, load_library, read_info, save_library
-from slearn.stream import Episode
-from slearn.tokens import TokenTable
-from slearn.vocabulary import Vocabulary
+from slearn.core.library import PatternLibrary
+from slearn.core.literal import LiteralLibrary
+from slearn.io.spec import Bins, Categorical, ChannelSpec, Spec
+from slearn.io.library_header import FORMAT_VERSION
+from slearn.io.library_info import describe
+from slearn.jobs.merge import merge_libraries
+from slearn.io.library_file import METADATA_KEY, load_library, read_info, save_library
+from slearn.core.stream import Episode
+from slearn.core.tokens import TokenTable
+from slearn.core.vocabulary import Vocabulary
 
 PARAMS = {"scoring": "literal"}
 PROVENANCE = {"slearn_version": "test", "inputs": [{"path": "a.mcap", "size_bytes": 1, "sha256": "0" * 64}],
@@ -225,7 +225,7 @@ def test_a_failed_save_does_not_touch_the_existing_file(tmp_path):
 def test_a_write_that_breaks_midway_does_not_touch_the_existing_file(tmp_path, monkeypatch):
     import errno
 
-    import slearn.storage as storage
+    import slearn.io.library_file as storage
 
     path = tmp_path / "lib.parquet"
     save(path, learned())
@@ -242,7 +242,7 @@ def test_a_write_that_breaks_midway_does_not_touch_the_existing_file(tmp_path, m
 
 
 def test_a_written_file_that_does_not_read_back_is_not_kept(tmp_path, monkeypatch):
-    import slearn.storage as storage
+    import slearn.io.library_file as storage
 
     path = tmp_path / "lib.parquet"
     save(path, learned())
@@ -408,7 +408,7 @@ def named_patterns(loaded) -> dict[tuple, tuple[int, int]]:
 
 
 def loaded(vocabulary, library, spec=None, path=None):
-    from slearn.storage import LoadedLibrary, library_params
+    from slearn.io.library_file import LoadedLibrary, library_params
     return LoadedLibrary(library, vocabulary, spec, library_params(library), dict(PROVENANCE), 2, path)
 
 
@@ -474,7 +474,7 @@ def test_token_table_find_all_matches_find():
 
 
 def test_tables_split_over_many_row_groups_round_trip(tmp_path, monkeypatch):
-    import slearn.storage as storage
+    import slearn.io.library_file as storage
 
     monkeypatch.setattr(storage, "ROW_GROUP_ROWS", 7)
     library = learned(seed=5)

@@ -10,11 +10,11 @@ from mcap.reader import make_reader
 from fixtures import online_correct
 from slearn.cli import main
 from slearn.errors import InputError
-from slearn.library import PatternLibrary
-from slearn.recorders.stream import convert_stream, detect_format, stream_spec
-from slearn.serialize import read_episodes
-from slearn.spec import load_spec
-from slearn.vocabulary import Vocabulary
+from slearn.core.library import PatternLibrary
+from slearn.recorders.record_stream import convert_stream, detect_format, stream_spec
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import load_spec
+from slearn.core.vocabulary import Vocabulary
 
 
 def _steps(paths, spec):

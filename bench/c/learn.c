@@ -1,19 +1,19 @@
 /* slearn's learning rule in plain C: the speed anchor of bench/bench_learn.py, which
  * checks that both build the same library, byte for byte.
  *
- * The rule (slearn/online.py, run_codes with learn=True): steps come encoded for views
- * (slearn/views.py): an action token per step and the (view, observation token) reports.
+ * The rule (slearn/core/online.py, run_codes with learn=True): steps come encoded for views
+ * (slearn/core/views.py): an action token per step and the (view, observation token) reports.
  * Each view's stream gets the step's action (all views), then its observation (a view
  * that did not report shows its last one again). Before an observation is appended, every
  * context of 1..K tokens just before it is looked up in a tree read backwards from the
- * view's root; the experts of slearn/mixer.py (frequent, recent and fresh outcome of each
+ * view's root; the experts of slearn/core/mixer.py (frequent, recent and fresh outcome of each
  * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
  * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
  * PPM-C's estimate in its context), and every context counts one more
  * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
  *
  * Hash tables hold record ids; a record's key is (parent, token) for nodes and
- * (owner, outcome) for entries, hashed as slearn/hashtable.py does. Capacities are given
+ * (owner, outcome) for entries, hashed as slearn/core/hashtable.py does. Capacities are given
  * by the caller (no growth), so ids and every number match slearn's.
  *
  * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm
@@ -91,7 +91,7 @@ static void credit(tree_t *t, int32_t e, int32_t node, int64_t clock) {
     if (b == -1 || t->fresh[e] >= t->fresh[b]) t->fresh_best[node] = e;
 }
 
-/* --- the mixer (slearn/mixer.py) ---------------------------------------------------- */
+/* --- the mixer (slearn/core/mixer.py) ---------------------------------------------------- */
 
 static void update(double *w, const int32_t *cand, int n, int K, int32_t truth,
                    double beta, double floor_) {

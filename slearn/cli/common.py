@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 import click
 
 from slearn.errors import DataWarning
-from slearn.slicing import TRAIN, TimeSlice, time_slice
+from slearn.io.slicing import TRAIN, TimeSlice, time_slice
 
 CHANNEL_HELP = (
     "A spec entry (repeatable): TOPIC:FIELD:ROLE[:OPTIONS], OPTIONS as key=value separated by "
@@ -45,7 +45,7 @@ def slice_options(split: bool) -> Callable:
 
 def make_slice(start: str | None, end: str | None, split: float | None,
                part: str = TRAIN) -> TimeSlice | None:
-    """The :class:`~slearn.slicing.TimeSlice` of the options (``None``: whole logs)."""
+    """The :class:`~slearn.io.slicing.TimeSlice` of the options (``None``: whole logs)."""
     return time_slice(start, end, split, part)
 
 
@@ -78,7 +78,7 @@ def warnings_on_stderr() -> Iterator[None]:
 
 
 def ray_options(func: Callable) -> Callable:
-    """Add --workers and --ray (run the job's tasks on Ray: :mod:`slearn.cluster`)."""
+    """Add --workers and --ray (run the job's tasks on Ray: :mod:`slearn.jobs.cluster`)."""
     func = click.option("--ray", "ray_address", metavar="ADDRESS",
                         help="Run on the Ray cluster at ADDRESS (host:6379, or auto: the one "
                              "`ray start` began here). Every node must see the logs at the same "
@@ -97,13 +97,13 @@ def echo_progress(line: str) -> None:
 def reader_for(workers: int | None, address: str | None, what: str | None) -> Iterator[Callable]:
     """The log reader of a job: on Ray with --workers/--ray (progress lines ``what`` k/n
     logs when ``what`` is given), else the one-process reader."""
-    from slearn.serialize import read_episodes
+    from slearn.io.serialize import read_episodes
 
     if workers is None and address is None:
         yield read_episodes
         return
-    from slearn.cluster import ray_session
-    from slearn.distributed import RayReader
+    from slearn.jobs.cluster import ray_session
+    from slearn.jobs.distributed import RayReader
 
     with ray_session(workers, address) as ray:
         yield RayReader(ray, echo_progress if what else None, what or "read")

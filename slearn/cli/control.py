@@ -13,7 +13,7 @@ from slearn.control import (AGENTS, DEFAULT_BUDGET, EXTRA_AGENTS, OFFLINE_TRIALS
                             ControlResult, Summary, run_control, write_control_mcap)
 from slearn.cli.limits import MAX_GOALS, MAX_STEPS, MAX_TRIALS, FiniteFloat
 from slearn.envs import parse_env_args
-from slearn.files import check_output
+from slearn.io.files import check_output
 from slearn.planner import PlannerSettings
 from slearn.recorders.pointer import CONDITIONS
 
@@ -86,7 +86,7 @@ def command(env_spec, env_args, condition, library_path, goals, goal, repeat_goa
 def _load(path: Path | None):
     if path is None:
         return None, None, None
-    from slearn.storage import load_library  # pyarrow is imported only when a library is given
+    from slearn.io.library_file import load_library  # pyarrow is imported only when a library is given
 
     loaded = load_library(path)
     return loaded.library, loaded.vocabulary, str(path)

@@ -1,4 +1,4 @@
-"""``slearn demo``: reproduce the paper's Figure 2 (see :mod:`slearn.demo`)."""
+"""``slearn demo``: reproduce the paper's Figure 2 (see :mod:`slearn.jobs.demo`)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from slearn.demo import PAPER, RULES, DemoResult, run_demo
-from slearn.files import claim_folder, release_folder, write_atomic
+from slearn.jobs.demo import PAPER, RULES, DemoResult, run_demo
+from slearn.io.files import claim_folder, release_folder, write_atomic
 from slearn.recorders.pointer import CONDITIONS
 
 # What the demo writes in its folder; a rerun after a killed run replaces these.
@@ -62,7 +62,7 @@ def _fresh_folder(out_dir: str | None) -> Path:
 
 
 def _write_outputs(result: DemoResult) -> None:
-    from slearn.figure2 import plot_figure2
+    from slearn.jobs.figure2 import plot_figure2
 
     out = Path(result.out_dir)
     result.figure_path = str(out / "figure2.png")

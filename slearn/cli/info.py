@@ -8,8 +8,8 @@ import click
 
 from slearn.cli import EXIT_TRUNCATED
 from slearn.cli.common import make_slice, slice_options, topic_list
-from slearn.files import check_output, write_atomic
-from slearn.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time, suggest_spec
+from slearn.io.files import check_output, write_atomic
+from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time, suggest_spec
 
 
 def _fmt_value(value) -> str:
@@ -73,7 +73,7 @@ def _as_dict(result) -> dict:
 
 
 def _as_text(result, show_fields: bool) -> str:
-    # libraries (slearn.storage.describe) may bring their own text rendering
+    # libraries (slearn.io.library_file.describe) may bring their own text rendering
     if isinstance(result, LogProfile):
         return _render(result, show_fields)
     if hasattr(result, "render"):

@@ -13,9 +13,9 @@ from slearn.cli.common import (CHANNEL_HELP, echo_progress, make_slice, ray_opti
                                topic_list, warnings_on_stderr)
 from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
-from slearn.files import refuse_inputs
-from slearn.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
-from slearn.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
+from slearn.io.files import refuse_inputs
+from slearn.jobs.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
+from slearn.io.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
 
 
 def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
@@ -108,7 +108,7 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     with warnings.catch_warnings(), warnings_on_stderr():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once
         if merge_tree:
-            from slearn.merge_tree import learn_on_ray
+            from slearn.jobs.merge_tree import learn_on_ray
 
             if workers is None and ray_address is None:
                 raise click.UsageError("--merge-tree runs on Ray: give --workers N or --ray ADDRESS")

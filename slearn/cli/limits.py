@@ -7,7 +7,7 @@ import math
 
 import click
 
-from slearn.library_header import MAX_LENGTH, MAX_PATTERNS
+from slearn.io.library_header import MAX_LENGTH, MAX_PATTERNS
 from slearn.recorders.pointer import MAX_TRIALS
 
 MAX_TOP_K = 100

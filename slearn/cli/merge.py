@@ -6,7 +6,7 @@ import json
 
 import click
 
-from slearn.merge import merge_files
+from slearn.jobs.merge import merge_files
 
 
 @click.command("merge")

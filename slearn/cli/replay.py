@@ -8,14 +8,14 @@ import os
 
 import click
 
-from slearn.bags import is_log_path
+from slearn.io.bags import is_log_path
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
 from slearn.cli.common import make_slice, ray_options, reader_for, slice_options, topic_list
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.errors import InputError
-from slearn.files import check_output
-from slearn.library import DEFAULT_MAX_LENGTH
-from slearn.slicing import HELDOUT
+from slearn.io.files import check_output
+from slearn.core.library import DEFAULT_MAX_LENGTH
+from slearn.io.slicing import HELDOUT
 
 _MCAP_MAGIC = b"\x89MCAP"
 
@@ -122,14 +122,14 @@ def _spec(spec: str | None, library: str | None, topics: str | None):
     if wanted is None:
         return spec
     if library is not None:
-        from slearn.storage import read_info
+        from slearn.io.library_file import read_info
 
         learned = sorted({c["topic"] for c in (read_info(library).get("spec") or {}).get("channel", [])})
         if learned and sorted(set(wanted)) != learned:
             raise InputError(f"{library}: learned on topics {', '.join(learned)}; replay reads the "
                              f"same topics (drop --topics, or learn a library on the ones you want)")
         return spec
-    from slearn.spec import load_spec
+    from slearn.io.spec import load_spec
 
     return load_spec(spec).only_topics(wanted)
 

@@ -1,0 +1,141 @@
+"""How slearn compiles its kernels: two decorators and a cache of its own.
+
+* :func:`kernel` compiles a function called once per batch of work (a whole episode, a
+  table to rebuild). It may allocate; it reads the arrays of its state into locals once.
+* :func:`helper` compiles a function called per step from a kernel. Helpers are compiled
+  without numba's reference counting (``_nrt=False``): they take raw arrays and scalars,
+  never allocate, and a call costs what a C call costs. (A helper inlined into its caller
+  at numba's IR level, or compiled with reference counting, pays an atomic increment and
+  decrement per array argument on every call: that was most of the learning time.)
+
+Compiled code is cached on disk in a folder of slearn's own, named after a fingerprint
+of the sources of every module that holds kernels, so that a change in any of them (a
+callee in another module included) compiles everything once again; numba alone checks a
+kernel against its own file only. The folder is set while slearn's kernels are decorated
+and restored after, so other libraries' kernels in the same process keep their own
+cache. Folders of other fingerprints unused for a week, or beyond the eight most recently
+used, are removed (checkouts of several branches share the base). ``NUMBA_CACHE_DIR`` moves slearn's
+folder under it; ``SLEARN_CACHE_DIR`` sets it outright.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numba
+from numba.core import types
+
+_MARKER = b"from slearn.core._jit import"
+_PACKAGES = ("slearn", "slearn.replay", "slearn.recorders")
+# Several checkouts (branches, worktrees, virtualenvs) share the cache base, each with its
+# own fingerprint: a folder goes when unused for a week, or beyond the most recently used.
+KEEP_FOLDERS = 8
+STALE_S = 7 * 24 * 3600
+
+
+def kernel(function):
+    """Compile ``function`` as a cached kernel (it may allocate)."""
+    with _slearn_cache():
+        return _plain_calls(numba.njit(cache=True)(function))
+
+
+def helper(function):
+    """Compile ``function`` as a cached per-step helper: no reference counting, no allocation."""
+    with _slearn_cache():
+        return _plain_calls(numba.njit(cache=True, _nrt=False)(function))
+
+
+def _plain_calls(dispatcher):
+    """Called from compiled code, compile ``dispatcher`` for the plain types of its arguments.
+
+    Numba types a constant argument as a literal (``Literal[int](0)`` for ``m = 0``) and
+    compiles the callee once more for it, and once more for an ``int32`` where another call
+    passes an ``int64``: a second (third, fourth) compilation of most helpers, a third of a
+    cold start's compile time. One signature serves every call: literals as their plain
+    type, signed integer scalars as ``int64`` (numba computes in ``int64`` anyway).
+    """
+    resolve = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return resolve(tuple(_plain(a) for a in args), {k: _plain(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
+
+
+def _plain(numba_type):
+    numba_type = types.unliteral(numba_type)
+    if isinstance(numba_type, types.Integer) and numba_type.signed and numba_type.bitwidth < 64:
+        return types.int64
+    return numba_type
+
+
+class _slearn_cache:
+    """Point numba's cache at slearn's folder for the duration of a decoration."""
+
+    def __enter__(self) -> None:
+        self.saved = numba.config.CACHE_DIR
+        numba.config.CACHE_DIR = cache_folder()
+
+    def __exit__(self, *exc) -> None:
+        numba.config.CACHE_DIR = self.saved
+
+
+@lru_cache(maxsize=1)
+def cache_folder() -> str:
+    """slearn's cache folder for the current sources (created, older ones pruned)."""
+    base = cache_base()
+    folder = base / source_fingerprint()
+    folder.mkdir(parents=True, exist_ok=True)
+    folder.touch()
+    prune(base, folder)
+    return str(folder)
+
+
+def cache_base() -> Path:
+    """Where fingerprint folders live."""
+    if os.environ.get("SLEARN_CACHE_DIR"):
+        return Path(os.environ["SLEARN_CACHE_DIR"])
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "slearn"
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache")
+    return Path(home) / "slearn" / "numba"
+
+
+def kernel_sources() -> list[Path]:
+    """The source files of every slearn module that compiles kernels, sorted."""
+    import importlib.util
+    files: set[Path] = set()
+    for name in _PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.submodule_search_locations:
+            files.update(p for folder in spec.submodule_search_locations for p in Path(folder).rglob("*.py"))
+    return sorted((p for p in files if _MARKER in p.read_bytes()), key=lambda p: (p.parent.name, p.name))
+
+
+def source_fingerprint() -> str:
+    """A short hash of the kernel modules' sources (names and contents)."""
+    digest = hashlib.sha256()
+    for path in kernel_sources():
+        digest.update(f"{path.parent.name}/{path.name}".encode() + b"\0" + path.read_bytes())
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()[:16]
+
+
+def prune(base: Path, current: Path, now: float | None = None) -> None:
+    """Remove fingerprint folders unused for ``STALE_S`` seconds or beyond the
+    ``KEEP_FOLDERS`` most recently used (the current one counted and kept)."""
+    now = time.time() if now is None else now
+    try:
+        folders = [p for p in base.iterdir() if p.is_dir() and p != current and len(p.name) == 16]
+        folders.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+        for rank, folder in enumerate(folders, start=1):
+            if rank >= KEEP_FOLDERS or now - folder.stat().st_mtime > STALE_S:
+                shutil.rmtree(folder, ignore_errors=True)
+    except OSError:
+        pass  # a read-only or vanished cache is not an error: numba recompiles

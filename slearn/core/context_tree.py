@@ -1,0 +1,218 @@
+"""The context tree: every context of a stream, read backwards, with what followed it.
+
+A *context* is a run of tokens just before an outcome, up to a maximum length. The tree
+stores contexts backwards from a root per view (the token just before the outcome first,
+then the one before it, ...), so the contexts of one prediction lie on one path and a
+context of ``k`` tokens is the node at depth ``k``. Each node holds *entries*
+``(outcome, count, last_seen, fresh)``: how often the outcome followed the context, the
+clock of its last occurrence, and how often since the current epoch of its view began
+(see :mod:`slearn.core.mixer`). Together, a context and one of its outcomes are a pattern of
+the library: an observed run of events with its count and recency.
+
+Per node, ``best`` (most occurrences, ties to the newest), ``newest`` (seen last) and
+``fresh_best`` (most occurrences this epoch) are kept in O(1) per occurrence, because
+counts only grow: the entry just counted is the newest, so it takes over on a tie.
+Fresh counts belong to the epoch written in the node and are reset lazily, when a node
+of an older epoch is next counted. Nodes and entries are found through
+:mod:`slearn.core.hashtable`. The arrays never move inside a compiled call: callers check
+:func:`room` and :func:`grow` between calls.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from slearn.core import hashtable
+from slearn.core.hashtable import EMPTY, find, probe
+from slearn.core._jit import helper
+
+
+class Tree(NamedTuple):
+    """All arrays of a context tree; ``size`` is ``[nodes, entries]`` in use."""
+
+    parent: np.ndarray      # int32 per node, -1 for a view root
+    token: np.ndarray       # int32 per node; a root holds its view
+    first: np.ndarray       # int32 per node: its newest-added entry, -1
+    best: np.ndarray        # int32 per node
+    newest: np.ndarray      # int32 per node
+    fresh_best: np.ndarray  # int32 per node
+    epoch: np.ndarray       # int32 per node: the epoch its fresh counts belong to
+    node_slots: np.ndarray  # int32 hash slots of (parent, token)
+    owner: np.ndarray       # int32 per entry: its context node
+    outcome: np.ndarray     # int32 per entry
+    count: np.ndarray       # int64 per entry
+    last_seen: np.ndarray   # int64 per entry
+    fresh: np.ndarray       # int64 per entry
+    next: np.ndarray        # int32 per entry: the next entry of the same node, -1
+    entry_slots: np.ndarray  # int32 hash slots of (owner, outcome)
+    size: np.ndarray        # int64[2]
+
+
+_NODE_FILL = {"parent": -1, "token": -1, "first": -1, "best": -1, "newest": -1,
+              "fresh_best": -1, "epoch": 0}
+_ENTRY_FILL = {"owner": -1, "outcome": -1, "count": 0, "last_seen": 0, "fresh": 0, "next": -1}
+_NODE_TYPES = {"epoch": np.int32}
+_ENTRY_TYPES = {"count": np.int64, "last_seen": np.int64, "fresh": np.int64}
+
+
+def new_tree(nodes: int = 1024, entries: int = 1024) -> Tree:
+    """An empty tree with room for ``nodes`` nodes and ``entries`` entries."""
+    node_arrays = {name: np.full(nodes, fill, _NODE_TYPES.get(name, np.int32))
+                   for name, fill in _NODE_FILL.items()}
+    entry_arrays = {name: np.full(entries, fill, _ENTRY_TYPES.get(name, np.int32))
+                    for name, fill in _ENTRY_FILL.items()}
+    return Tree(**node_arrays, node_slots=hashtable.new_slots(nodes), **entry_arrays,
+                entry_slots=hashtable.new_slots(entries), size=np.zeros(2, np.int64))
+
+
+def room(tree: Tree) -> tuple[int, int]:
+    """``(nodes, entries)`` that can still be added without :func:`grow`."""
+    return len(tree.parent) - int(tree.size[0]), len(tree.owner) - int(tree.size[1])
+
+
+def grow(tree: Tree, nodes: int, entries: int) -> Tree:
+    """A copy with room for at least ``nodes`` more nodes and ``entries`` more entries."""
+    n, m = int(tree.size[0]), int(tree.size[1])
+    node_cap, entry_cap = len(tree.parent), len(tree.owner)
+    while node_cap - n < nodes:
+        node_cap *= 2
+    while entry_cap - m < entries:
+        entry_cap *= 2
+    if node_cap == len(tree.parent) and entry_cap == len(tree.owner):
+        return tree
+    fresh = new_tree(node_cap, entry_cap)
+    for name in (*_NODE_FILL, *_ENTRY_FILL):
+        used = n if name in _NODE_FILL else m
+        getattr(fresh, name)[:used] = getattr(tree, name)[:used]
+    fresh.size[:] = tree.size
+    hashtable.rebuild(fresh.node_slots, fresh.parent, fresh.token, 0, n)
+    hashtable.rebuild(fresh.entry_slots, fresh.owner, fresh.outcome, 0, m)
+    return fresh
+
+
+def ensure_room(tree: Tree, nodes: int, entries: int) -> Tree:
+    """``tree`` itself when it has the room, else a grown copy (doubling)."""
+    free_nodes, free_entries = room(tree)
+    if free_nodes >= nodes and free_entries >= entries:
+        return tree
+    return grow(tree, max(nodes, len(tree.parent)), max(entries, len(tree.owner)))
+
+
+def add_root(tree: Tree, view: int) -> int:
+    """A new root node for ``view`` (call with room for one node)."""
+    node = int(tree.size[0])
+    tree.parent[node] = -1
+    tree.token[node] = view
+    tree.size[0] = node + 1
+    return node
+
+
+def nbytes(tree: Tree) -> int:
+    """Bytes held by the tree's arrays."""
+    return sum(a.nbytes for a in tree)
+
+
+# --- compiled helpers on raw arrays (inlined into the kernels that read a Tree) ----------
+
+@helper
+def child(node_slots, parent, token, node, tok):
+    """The child of ``node`` along ``tok``, or -1."""
+    return find(node_slots, parent, token, node, tok)
+
+
+@helper
+def child_or_add(node_slots, parent, token, size, node, tok):
+    """The child of ``node`` along ``tok``, added when missing (room is the caller's)."""
+    s = probe(node_slots, parent, token, node, tok)
+    found = node_slots[s]
+    if found != EMPTY:
+        return found
+    new = np.int32(size[0])
+    parent[new] = node
+    token[new] = tok
+    node_slots[s] = new
+    size[0] = new + 1
+    return new
+
+
+@helper
+def entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, out):
+    """The entry of ``out`` after ``node``, added when missing (room is the caller's)."""
+    s = probe(entry_slots, owner, outcome, node, out)
+    found = entry_slots[s]
+    if found != EMPTY:
+        return found
+    e = np.int32(size[1])
+    owner[e] = node
+    outcome[e] = out
+    nxt[e] = first[node]
+    first[node] = e
+    entry_slots[s] = e
+    size[1] = e + 1
+    return e
+
+
+@helper
+def refresh(first, nxt, fresh, fresh_best, epoch, node, current):
+    """Bring a node's fresh counts into epoch ``current`` (zero them if older)."""
+    if epoch[node] != current:
+        e = first[node]
+        while e != -1:
+            fresh[e] = 0
+            e = nxt[e]
+        fresh_best[node] = -1
+        epoch[node] = current
+
+
+@helper
+def credit(count, last_seen, fresh, best, newest, fresh_best, e, node, clock):
+    """Count one occurrence of entry ``e`` (of ``node``) at ``clock``."""
+    count[e] += 1
+    last_seen[e] = clock
+    fresh[e] += 1
+    b = best[node]
+    if b == -1 or count[e] >= count[b]:
+        best[node] = e
+    newest[node] = e
+    b = fresh_best[node]
+    if b == -1 or fresh[e] >= fresh[b]:
+        fresh_best[node] = e
+
+
+@helper
+def node_total(first, nxt, weight, node):
+    """The summed ``weight`` (count or fresh) of a node's entries."""
+    total = 0
+    e = first[node]
+    while e != -1:
+        total += weight[e]
+        e = nxt[e]
+    return total
+
+
+@helper
+def hit_probability(first, nxt, weight, node, e):
+    """How likely entry ``e``'s outcome follows ``node`` again, by PPM's method C: its count
+    over the node's total plus one escape count per distinct outcome (what was never seen
+    after the context keeps that share)."""
+    total = 0
+    distinct = 0
+    f = first[node]
+    while f != -1:
+        if weight[f] > 0:
+            total += weight[f]
+            distinct += 1
+        f = nxt[f]
+    return weight[e] / (total + distinct) if total > 0 else 0.0
+
+
+@helper
+def ranks_above(weight, last_seen, outcome, a, b):
+    """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
+    if weight[a] != weight[b]:
+        return weight[a] > weight[b]
+    if last_seen[a] != last_seen[b]:
+        return last_seen[a] > last_seen[b]
+    return outcome[a] < outcome[b]

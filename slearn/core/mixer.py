@@ -1,0 +1,185 @@
+"""How the contexts of one prediction are weighed: exponential weights over experts.
+
+For one view (one observation channel), the candidates of a prediction are the
+contexts of length ``1..K`` found in the tree. Each context offers three *experts*:
+
+* ``FREQUENT``: its outcome seen most often (all time);
+* ``RECENT``: its outcome seen last;
+* ``FRESH``: its outcome seen most often since the view's current epoch began.
+
+An expert is ``(context length, kind)``; experts whose context was never seen sleep.
+The awake expert of largest weight speaks (Hedge with sleeping experts, Freund et al.
+1997): after the outcome, every awake expert that was wrong loses ``ETA`` of log-weight
+(its weight is multiplied by ``exp(-ETA)``), then the awake experts' total is restored,
+so sleeping experts neither gain nor lose.
+Weights stay within ``SPREAD`` of the leader, so an expert that was poor for a long
+time can take over after a few dozen mistakes of the leader: the mixture tracks the best
+expert when it changes (a switch of dynamics), as fixed-share does.
+
+Epochs. Counts accumulated before a change of dynamics mislead frequency forever. A
+Bernoulli CUSUM test (Page 1954) watches the most trusted frequency expert: each of its
+predictions has its own expected miss rate ``q0`` (one minus the probability PPM's method C
+gives its outcome in its context: the outcome's count over the context's total plus one
+escape count per distinct outcome), and the test accumulates the
+log-likelihood ratio of ``q1 = (1 + q0) / 2`` against it, so a miss where the context is
+nearly certain weighs much, a miss where it is a coin toss little. It raises an alarm past
+``ln(1 / FALSE_ALARM)`` (the false-alarm rate per prediction is at most ``FALSE_ALARM``
+when the shares are calibrated). An alarm opens a new epoch:
+fresh counts restart from zero (:mod:`slearn.core.context_tree`), and the ``FRESH`` experts
+start from the weights of the frequency experts of the same length, so they speak as
+soon as they are as good. A false alarm costs little, because the all-time experts keep
+their weights.
+
+Ties go to ``FRESH``, then ``RECENT``, then shorter contexts: with no evidence yet, the
+latest and simplest explanation speaks. No constant is tuned to a data set:
+``ETA`` is Hedge's rate for tens of experts over ~10^4 predictions, ``SPREAD`` bounds the
+catch-up to ``SPREAD / ETA`` net mistakes, and ``FALSE_ALARM`` is a rate; the measured
+tables in ``bench/`` are flat over a factor of two in each.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from slearn.core._jit import helper
+
+FREQUENT, RECENT, FRESH = 0, 1, 2
+KINDS = ("frequent", "recent", "fresh")
+N_KINDS = 3
+ETA = 0.1
+SPREAD = 5.0
+FALSE_ALARM = 1e-6
+_THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
+_BETA = float(np.exp(-ETA))
+_FLOOR = float(np.exp(-SPREAD))
+_TIE = np.array([1.0, 1.0 + 2e-9, 1.0 + 4e-9])  # prior weight per kind: FRESH, then RECENT, win ties
+ASLEEP = 0.0  # the weight of FRESH experts before the first epoch
+CUSUM, MISSES, TRIALS = 0, 1, 2
+
+
+class Mixer(NamedTuple):
+    """Expert weights and change detectors of all views.
+
+    ``weight[v, k - 1, kind]`` is the weight of expert ``(k, kind)`` of view ``v``, relative
+    to the view's leader (so in ``[exp(-SPREAD), 1]``, or ``ASLEEP``); ``detector[v]`` holds
+    ``(cusum, misses, trials)`` of the view's test since its epoch began; ``epoch[v]``
+    counts the view's alarms.
+    """
+
+    weight: np.ndarray    # float64 (views, K, 3)
+    detector: np.ndarray  # float64 (views, 3)
+    epoch: np.ndarray     # int32 (views,)
+
+
+def new_mixer(views: int, max_context: int) -> Mixer:
+    """Fresh weights: everything equal but the tie-breaking prior."""
+    weight = np.empty((views, max_context, N_KINDS))
+    weight[:] = (_TIE / _TIE.max()) * (1.0 - 1e-12 * np.arange(max_context))[:, None]
+    weight[:, :, FRESH] = ASLEEP
+    return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32))
+
+
+def with_views(mixer: Mixer, views: int) -> Mixer:
+    """``mixer`` extended with fresh state for new views."""
+    have = len(mixer.epoch)
+    if views <= have:
+        return mixer
+    extra = new_mixer(views - have, mixer.weight.shape[1])
+    return Mixer(*(np.concatenate((a, b)) for a, b in zip(mixer, extra)))
+
+
+@helper
+def select(w, v, cand, n):
+    """The awake expert of largest weight among contexts ``1..n`` of view ``v``:
+    ``(length, kind)``. ``cand[k, kind]`` is the expert's outcome, or -1 (asleep).
+
+    A sleeping expert lends its weight to its shorter twins (same kind): when the leader's
+    context is missing from the history (never seen, or longer than the history), its own
+    kind at the longest context found speaks, as PPM backs off to a shorter context.
+    Equal weights go to the longest context.
+    """
+    best_w, best_k, best_kind = -1.0, 0, 0
+    lent_frequent, lent_recent, lent_fresh = 0.0, 0.0, 0.0  # no allocation in helpers
+    for k in range(w.shape[1], 0, -1):
+        for kind in range(N_KINDS):
+            lent = lent_frequent if kind == FREQUENT else lent_recent if kind == RECENT else lent_fresh
+            x = max(w[v, k - 1, kind], lent)
+            if k <= n and cand[k, kind] >= 0:
+                if x > best_w:
+                    best_w, best_k, best_kind = x, k, kind
+            elif kind == FREQUENT:
+                lent_frequent = x
+            elif kind == RECENT:
+                lent_recent = x
+            else:
+                lent_fresh = x
+    return best_k, best_kind
+
+
+@helper
+def update(w, v, cand, n, truth):
+    """Hedge's sleeping-experts step, then the leader rescaled to 1 and the spread bound."""
+    before = 0.0
+    after = 0.0
+    for k in range(1, n + 1):
+        for kind in range(N_KINDS):
+            if cand[k, kind] >= 0:
+                before += w[v, k - 1, kind]
+                if cand[k, kind] != truth:
+                    w[v, k - 1, kind] *= _BETA
+                after += w[v, k - 1, kind]
+    if after <= 0.0:
+        return
+    ratio = before / after
+    for k in range(1, n + 1):
+        for kind in range(N_KINDS):
+            if cand[k, kind] >= 0:
+                w[v, k - 1, kind] *= ratio
+    leader = 0.0
+    for k in range(w.shape[1]):
+        for kind in range(N_KINDS):
+            leader = max(leader, w[v, k, kind])
+    scale = 1.0 / leader
+    for k in range(w.shape[1]):
+        for kind in range(N_KINDS):
+            x = w[v, k, kind] * scale
+            w[v, k, kind] = _FLOOR if 0.0 < x < _FLOOR else x
+
+
+@helper
+def trusted_length(w, v, cand, n, epoch):
+    """The context length of the frequency expert of largest weight, or 0: all-time counts
+    before the first alarm, fresh counts after it (all-time counts are known stale then)."""
+    kind = FREQUENT if epoch == 0 else FRESH
+    best_w, out = -1.0, 0
+    for k in range(1, n + 1):
+        if cand[k, kind] >= 0 and w[v, k - 1, kind] >= best_w:
+            best_w, out = w[v, k - 1, kind], k
+    return out
+
+
+@helper
+def detect(w, det, v, hit, p_hit):
+    """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test.
+
+    ``p_hit`` is the expert's own probability of being right (see the module docstring):
+    the test compares the misses with the
+    misses expected context by context, so easy and hard contexts do not pass for a change.
+    Returns whether the test raised an alarm (and if so, resets it and starts the
+    ``FRESH`` experts from their frequency twins).
+    """
+    q0 = 1.0 - p_hit
+    q1 = 0.5 * (1.0 + q0)
+    step = np.log((1.0 - q1) / (1.0 - q0)) if hit else np.log(q1 / q0)
+    det[v, CUSUM] = max(0.0, det[v, CUSUM] + step)
+    det[v, MISSES] += 0.0 if hit else 1.0
+    det[v, TRIALS] += 1.0
+    if det[v, CUSUM] < _THRESHOLD:
+        return False
+    det[v, CUSUM] = 0.0
+    det[v, MISSES] = 0.0
+    det[v, TRIALS] = 0.0
+    for k in range(w.shape[1]):
+        w[v, k, FRESH] = max(w[v, k, FREQUENT], w[v, k, FRESH]) * (_TIE[FRESH] / _TIE[FREQUENT])
+    return True

@@ -1,0 +1,269 @@
+"""The step loop: predict each observation from its contexts, then learn it.
+
+One compiled kernel, :func:`run_codes`, walks an encoded episode (:mod:`slearn.core.views`)
+step by step. At each step the action is appended to every view's stream; for every
+view that reports, its contexts are looked up in the context tree, the experts of
+:mod:`slearn.core.mixer` propose outcomes and the best-weighted one is recorded; when
+learning, the experts' weights and the change detector are updated from the outcome
+and every context of the observation counts one more occurrence of it. ``learn=False``
+is a frozen library (held-out evaluation): nothing changes, not even the weights.
+Learning is this same loop, so a library learned offline carries the weights its
+predictions need.
+
+The kernel reads its state (tree, mixer, view streams) into locals once per call and
+stops early, before a step, when the tree could run out of room or the library reached
+its pattern bound; :class:`slearn.core.library.PatternLibrary` makes room and calls again.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from slearn.core.context_tree import (child, child_or_add, credit, entry_or_add, hit_probability, node_total,
+                                 ranks_above, refresh)
+from slearn.core.views import NO_TOKEN
+from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
+from slearn.core._jit import helper, kernel
+
+
+class Reports(NamedTuple):
+    """Per report (a view's observation at a step): what was predicted.
+
+    ``predicted`` is the predicted observation token (-1: abstained, or no context yet),
+    ``length`` the chosen context's length in tokens (-1), ``kind`` the expert kind,
+    ``score`` the chosen context's share behind the prediction, ``truth_p`` its share
+    behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the share
+    of each in the context that ranked it, ``context`` whether the view had any history
+    at all (the first observation of an episode has none). With ``Run.baselines``, the
+    same walk also records what three simple rules would say: ``markov`` (a
+    variable-order Markov model: the most frequent outcome of the longest context seen),
+    ``frequency`` (the most frequent outcome after the view's last observation and the
+    action, or after the last observation alone in a stream without actions) and
+    ``persistence`` (the last observation again).
+    """
+
+    predicted: np.ndarray  # int32
+    length: np.ndarray     # int32
+    kind: np.ndarray       # int8
+    score: np.ndarray      # float64
+    truth_p: np.ndarray    # float64
+    top: np.ndarray        # int32 (reports, top_k)
+    top_p: np.ndarray      # float64 (reports, top_k)
+    context: np.ndarray    # bool
+    markov: np.ndarray     # int32: the most frequent outcome of the longest context seen
+    frequency: np.ndarray  # int32: the most frequent outcome after (last observation, action)
+    persistence: np.ndarray  # int32: the view's last observation
+
+
+def new_reports(n: int, top_k: int) -> Reports:
+    """Output arrays for ``n`` reports, all abstentions."""
+    return Reports(np.full(n, -1, np.int32), np.full(n, -1, np.int32), np.full(n, -1, np.int8),
+                   np.zeros(n), np.zeros(n), np.full((n, max(top_k, 1)), -1, np.int32),
+                   np.zeros((n, max(top_k, 1))), np.zeros(n, np.bool_), np.full(n, -1, np.int32),
+                   np.full(n, -1, np.int32), np.full(n, -1, np.int32))
+
+
+class Run(NamedTuple):
+    """Scalars of one kernel call."""
+
+    has_actions: bool
+    empty_action: int       # the token of a step without actions
+    empty_observation: int  # a view's token before its first observation
+    max_entries: int        # stop when the tree holds this many entries (forgetting)
+    learn: bool
+    record: bool
+    baselines: bool = False
+    episode_start: bool = True  # step 0 of the codes is the first step of an episode
+
+
+@kernel
+def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run, out):
+    """Run steps ``step..`` of an encoded episode; return the step it stopped before.
+
+    ``clock`` is ``int64[1]``, advanced by one per learned step.
+    """
+    parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
+    fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
+    owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
+    fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
+    weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
+    recent, filled, held, root = views.recent, views.filled, views.held, views.root
+    K = recent.shape[1]
+    n_views = len(filled)
+    nodes = np.empty(K + 1, np.int32)
+    cand = np.full((K + 1, N_KINDS), -1, np.int32)
+    learn = run.learn
+    while step < len(action):
+        r0, r1 = offsets[step], offsets[step + 1]
+        need = K * (r1 - r0)
+        if learn and (len(parent) - size[0] < need or len(owner) - size[1] < need
+                      or size[1] >= run.max_entries):
+            return step
+        a = action[step]
+        push_action = run.has_actions and (step > 0 or a != run.empty_action
+                                           or not run.episode_start)
+        if push_action:
+            for v in range(n_views):
+                recent[v, filled[v] % K] = a
+                filled[v] += 1
+        for r in range(r0, r1):
+            v, x = view[r], token[r]
+            depth = min(filled[v], K)
+            if depth > 0:
+                if run.record or run.baselines:
+                    out.context[r] = True
+                ep = epoch[v]
+                node, n = root[v], 0
+                for k in range(1, depth + 1):
+                    t = recent[v, (filled[v] - k) % K]
+                    node = child_or_add(node_slots, parent, tok_of, size, node, t) if learn \
+                        else child(node_slots, parent, tok_of, node, t)
+                    if node < 0:
+                        break
+                    nodes[k] = node
+                    n = k
+                m = 0
+                for k in range(1, n + 1):
+                    nd = nodes[k]
+                    if first[nd] == -1:
+                        break
+                    cand[k, FREQUENT] = outcome[best[nd]]
+                    cand[k, RECENT] = outcome[newest[nd]]
+                    fb = fresh_best[nd]
+                    fresh_ok = ep > 0 and node_epoch[nd] == ep and fb != -1
+                    cand[k, FRESH] = outcome[fb] if fresh_ok else -1
+                    m = k
+                if run.baselines:
+                    out.persistence[r] = held[v]
+                    if m > 0:
+                        out.markov[r] = cand[m, FREQUENT]
+                    order = 2 if run.has_actions else 1
+                    if m >= order:
+                        out.frequency[r] = cand[order, FREQUENT]
+                if run.record and m > 0:
+                    k_sel, kind = select(weights, v, cand, m)
+                    _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
+                            count, fresh, last_seen, outcome, nodes, m)
+                if learn:
+                    update(weights, v, cand, m, x)
+                    kt = trusted_length(weights, v, cand, m, ep)
+                    if kt > 0:
+                        nd = nodes[kt]
+                        fresh_counts = ep > 0
+                        b = fresh_best[nd] if fresh_counts else best[nd]
+                        p_hit = hit_probability(first, nxt, fresh if fresh_counts else count, nd, b)
+                        if detect(weights, detector, v, outcome[b] == x, p_hit):
+                            epoch[v] += 1
+                    ep = epoch[v]
+                    for k in range(1, n + 1):
+                        nd = nodes[k]
+                        refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
+                        e = entry_or_add(entry_slots, owner, outcome, nxt, first, size, nd, x)
+                        credit(count, last_seen, fresh, best, newest, fresh_best, e, nd, clock[0])
+            recent[v, filled[v] % K] = x
+            filled[v] += 1
+            held[v] = x
+        if push_action:
+            _hold_silent(recent, filled, held, view, r0, r1, run.empty_observation)
+        if learn:
+            clock[0] += 1
+        step += 1
+    return step
+
+
+@helper
+def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
+    """Views that did not report after an action show their last observation again."""
+    K = recent.shape[1]
+    r = r0
+    for v in range(len(filled)):
+        if r < r1 and view[r] == v:
+            r += 1
+            continue
+        recent[v, filled[v] % K] = held[v] if held[v] != NO_TOKEN else empty_observation
+        filled[v] += 1
+
+
+@helper
+def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
+            outcome, nodes, m):
+    """Store the prediction of report ``r``: the outcome, its share, and the ranking."""
+    weight = fresh if kind == FRESH else count
+    total = node_total(first, nxt, weight, node)
+    out.predicted[r] = said
+    out.length[r] = length
+    out.kind[r] = kind
+    out.score[r] = _share(first, nxt, weight, outcome, node, said, total)
+    out.truth_p[r] = _share(first, nxt, weight, outcome, node, truth, total)
+    top, top_p = out.top, out.top_p
+    top[r, 0] = said
+    top_p[r, 0] = out.score[r]
+    filled = 1
+    for k in range(length, 0, -1):  # the chosen context's ranking, then shorter contexts'
+        if filled >= top.shape[1]:
+            break
+        w = fresh if (kind == FRESH and k == length) else count
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, w, last_seen, outcome)
+    for k in range(length + 1, m + 1):
+        if filled >= top.shape[1]:
+            break
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, count, last_seen, outcome)
+
+
+@helper
+def _share(first, nxt, weight, outcome, node, token, total):
+    if total <= 0:
+        return 0.0
+    e = first[node]
+    while e != -1:
+        if outcome[e] == token:
+            return weight[e] / total
+        e = nxt[e]
+    return 0.0
+
+
+@helper
+def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome):
+    """Append one node's outcomes to row ``r`` of ``top`` in rank order, skipping those
+    already there."""
+    start = filled
+    k = top.shape[1]
+    total = 0
+    e = head
+    while e != -1:
+        total += weight[e]
+        e = nxt[e]
+    e = head
+    while e != -1:
+        o = outcome[e]
+        taken = False
+        for i in range(filled):
+            if top[r, i] == o:
+                taken = True
+                break
+        if not taken and weight[e] > 0:
+            pos = filled
+            while pos > start and _ranked_before(e, top[r, pos - 1], head, nxt, weight, last_seen,
+                                                 outcome):
+                pos -= 1
+            if pos < k:
+                for i in range(min(filled, k - 1), pos, -1):
+                    top[r, i] = top[r, i - 1]
+                    top_p[r, i] = top_p[r, i - 1]
+                top[r, pos] = o
+                top_p[r, pos] = weight[e] / total
+                filled = min(filled + 1, k)
+        e = nxt[e]
+    return filled
+
+
+@helper
+def _ranked_before(e, other_outcome, head, nxt, weight, last_seen, outcome):
+    f = head
+    while f != -1:
+        if outcome[f] == other_outcome:
+            return ranks_above(weight, last_seen, outcome, e, f)
+        f = nxt[f]
+    return True

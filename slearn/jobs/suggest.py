@@ -1,0 +1,282 @@
+"""A spec that learns the right task as written, suggested from log profiles.
+
+:func:`suggest_spec` reads what :func:`slearn.jobs.info.describe_log` measured and writes a
+TOML spec whose uncommented entries learn as they are:
+
+- **Roles** from topic names and types: a topic whose name has ``cmd``, ``command``,
+  ``setpoint``, ``goal`` or ``target``, a channel whose metadata says ``role = action``
+  (slearn's recorders), and command types (``Twist``, ``JointTrajectory``,
+  ``Float64MultiArray``, ...) are actions; everything else is an observation.
+- **Skipped fields**: time stamps, sequence numbers, frame ids, joint names, constants and
+  free text, each listed in a comment with the reason.
+- **Symbols**: integers, strings and booleans with few values are categorical (the
+  values seen are declared). Numbers on a regular grid (a quantized sensor: a pointer
+  read in 10 degree steps) get one bin per grid value, and wrap when the grid covers a
+  full turn. Other numbers get ``count`` equal bins over the range seen in the data.
+- **Mode**: ``message`` (every message is an event: repeated commands and unchanged
+  readings are part of the task), with the reason in a comment.
+- **Which entries are live**: every action field, and the best observation candidates
+  (joint positions first, then other positions, then the fields that vary most); the
+  other candidates are written commented out, ready to uncomment.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Iterable
+
+from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile
+
+OBSERVATIONS_LIVE = 3  # observation fields uncommented
+CATEGORICAL_MAX = 64  # distinct values up to which integers and strings are categorical
+GRID_MAX = 64  # grid points up to which a quantized number gets one bin per value
+CONTINUOUS_BINS = 10
+TURN = 2 * math.pi
+
+_ACTION_WORDS = re.compile(r"(^|[/_.\-])(cmd|cmds|cmd_vel|command|commands|setpoint|setpoints|goal|"
+                           r"goals|target|targets)($|[/_.\-])", re.I)
+_ACTION_TYPES = ("Twist", "TwistStamped", "JointTrajectory", "MultiDOFJointTrajectory",
+                 "Float64MultiArray", "AckermannDrive", "AckermannDriveStamped", "JointJog")
+_SKIP = [(re.compile(r"(^|\.)stamp(\.|$)|(^|\.)(sec|secs|nsec|nsecs|nanosec)$"), "time stamps"),
+         (re.compile(r"(^|\.)seq$"), "sequence numbers"),
+         (re.compile(r"frame_id$"), "frame ids"),
+         (re.compile(r"(^|\.)name\[|(^|\.)joint_names\[|^layout\."), "names and layouts")]
+
+
+@dataclass
+class Candidate:
+    """A field that could be an entry: where, its role, its symbolizer lines and why."""
+
+    channel: ChannelProfile
+    info: FieldInfo
+    role: str
+    keys: list[str]
+    why: str
+    rank: tuple = ()
+
+
+@dataclass
+class _Block:
+    """One channel's part of the spec: its head, reasons, skipped fields and candidates."""
+
+    channel: ChannelProfile
+    role: str
+    role_why: str
+    skipped: dict[str, list[str]] = field(default_factory=dict)
+    candidates: list[Candidate] = field(default_factory=list)
+
+
+def guess_role(channel: ChannelProfile) -> tuple[str, str]:
+    """``(role, reason)`` from the channel's metadata, topic name and type."""
+    declared = channel.metadata.get("role")
+    if declared in ("action", "observation"):
+        return declared, f"the channel's metadata says role = {declared}"
+    match = _ACTION_WORDS.search(channel.topic)
+    if match:
+        return "action", f"the topic name has {match.group(2)!r}: a command"
+    type_name = channel.schema.rsplit("/", 1)[-1]
+    if type_name in _ACTION_TYPES:
+        return "action", f"{channel.schema} is a command type"
+    return "observation", "not a command by name or type"
+
+
+def _skip_reason(info: FieldInfo) -> str | None:
+    for pattern, reason in _SKIP:
+        if pattern.search(info.path):
+            return reason
+    if info.count == 0:
+        return "never present"
+    if info.constant:
+        return "constant"
+    if info.type == "str" and info.n_distinct is None:
+        return "free text (many distinct values)"
+    return None
+
+
+def _grid(values: list[float]) -> float | None:
+    """The step of a regular grid holding every value (``None`` if they are not on one)."""
+    values = sorted(values)
+    step = min(b - a for a, b in zip(values, values[1:]))
+    if step <= 0 or (values[-1] - values[0]) / step > GRID_MAX:
+        return None
+    if step < 1e-3 * max(abs(values[0]), abs(values[-1]), 1.0):
+        return None  # encoder ticks of a joint that barely moves: no grid worth a bin each
+    ok = all(abs((v - values[0]) / step - round((v - values[0]) / step)) < 1e-3 for v in values)
+    return step if ok else None
+
+
+def _number_keys(info: FieldInfo) -> tuple[list[str], str]:
+    lo, hi = float(info.min), float(info.max)
+    step = _grid(info.distinct) if info.n_distinct is not None and len(info.distinct) > 1 else None
+    if step is not None:
+        count = round((hi - lo) / step) + 1
+        low, high = lo - step / 2, hi + step / 2
+        if abs(count * step - TURN) < 0.01 * TURN:
+            return ([f"range = [{_num(low)}, {_num(low + TURN)}]", f"count = {count}", "wrap = true",
+                     'unit = "rad"'],
+                    f"{info.n_distinct} values on a grid of {math.degrees(step):g} degrees covering "
+                    f"the full turn: one bin per value, wrapping")
+        return ([f"range = [{_num(low)}, {_num(high)}]", f"count = {count}"],
+                f"{info.n_distinct} values on a grid of step {step:g}: one bin per value")
+    if _is_angle(info) and hi - lo > 0.9 * TURN:
+        low = 0.0 if lo >= -0.05 else -math.pi
+        return ([f"range = [{_num(low)}, {_num(low + TURN)}]", "count = 36", "wrap = true", 'unit = "rad"'],
+                "an angle covering the full turn: 36 bins of 10 degrees, wrapping")
+    return ([f"range = [{_num(lo)}, {_num(hi)}]", f"count = {CONTINUOUS_BINS}"],
+            f"{CONTINUOUS_BINS} equal bins over the range seen ({info.min:.6g} .. {info.max:.6g}); "
+            f"values outside it are counted and warned about")
+
+
+def _is_angle(info: FieldInfo) -> bool:
+    return bool(re.search(r"(^|\.)(position\[|angle|yaw|heading|theta)", info.path))
+
+
+def _num(x: float) -> str:
+    return repr(0.0 if abs(x) < 1e-9 else x)  # a grid starting at 0 comes out as 1e-17
+
+
+def _symbolizer(info: FieldInfo) -> tuple[list[str], str]:
+    few = info.n_distinct is not None and info.n_distinct <= CATEGORICAL_MAX
+    if info.type in ("str", "bool") or (info.type == "int" and few):
+        if not few:
+            return [], ""
+        values = ", ".join(_toml_value(v) for v in sorted(info.distinct, key=_sort_key))
+        return [f"values = [{values}]"], f"{info.n_distinct} distinct values: categorical"
+    if info.type in ("int", "float") and info.min is not None:
+        return _number_keys(info)
+    return [], ""
+
+
+def _sort_key(value) -> tuple:
+    return (0, value, "") if isinstance(value, (int, float)) else (1, 0, str(value))
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    return _toml_str(str(value))
+
+
+def _toml_str(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _rank(candidate: Candidate) -> tuple:
+    """Lower is better: joint positions, other positions, then the fields that vary most."""
+    path, schema = candidate.info.path, candidate.channel.schema
+    group = 0 if path.startswith("position[") and schema.endswith("JointState") else \
+        1 if re.search(r"(^|\.)(position|pos|angle|data)\b", path) else 2
+    info = candidate.info
+    spread = (info.max - info.min) if info.min is not None else 0.0
+    return group, -info.changes / max(info.count, 1), -spread, candidate.channel.topic, path
+
+
+def _block(channel: ChannelProfile) -> _Block:
+    role, why = guess_role(channel)
+    block = _Block(channel, role, why)
+    for info in channel.fields:
+        reason = _skip_reason(info)
+        keys, because = ([], "") if reason else _symbolizer(info)
+        if reason or not keys:
+            block.skipped.setdefault(reason or "no usable values", []).append(info.path)
+            continue
+        candidate = Candidate(channel, info, role, keys, because)
+        candidate.rank = _rank(candidate)
+        block.candidates.append(candidate)
+    return block
+
+
+def _merged_channels(profiles: list[LogProfile]) -> list[ChannelProfile]:
+    """One profile per (topic, schema): the first log's, its fields widened by the others'."""
+    merged: dict[tuple[str, str], ChannelProfile] = {}
+    for profile in profiles:
+        for channel in profile.channels:
+            key = (channel.topic, channel.schema)
+            if key not in merged:
+                merged[key] = channel
+            else:
+                _widen(merged[key], channel)
+    return list(merged.values())
+
+
+def _widen(into: ChannelProfile, other: ChannelProfile) -> None:
+    known = {f.path: f for f in into.fields}
+    into.count += other.count
+    for info in other.fields:
+        mine = known.get(info.path)
+        if mine is None:
+            continue
+        if info.min is not None:
+            mine.min = info.min if mine.min is None else min(mine.min, info.min)
+            mine.max = info.max if mine.max is None else max(mine.max, info.max)
+        mine.count, mine.changes = mine.count + info.count, mine.changes + info.changes
+        for value in info.distinct:
+            if value not in mine.distinct:
+                mine.distinct.append(value)
+        mine.more_distinct = (mine.more_distinct or info.more_distinct
+                              or len(mine.distinct) > CATEGORICAL_MAX)
+
+
+def suggest_spec(profiles: Iterable[LogProfile]) -> str:
+    """A TOML spec for the logs; its uncommented entries learn as written (see the module doc)."""
+    profiles = list(profiles)
+    blocks = [_block(c) for c in _merged_channels(profiles) if c.count and not c.decode_error]
+    actions = [c for b in blocks for c in b.candidates if c.role == "action"]
+    observations = sorted((c for b in blocks for c in b.candidates if c.role == "observation"),
+                          key=lambda c: c.rank)
+    live = {id(c) for c in actions + observations[:OBSERVATIONS_LIVE]}
+    lines = _header(profiles, actions, observations)
+    for block in blocks:
+        lines += _block_lines(block, live)
+    undecodable = [c for p in profiles for c in p.channels if c.decode_error]
+    lines += [f"# --- {c.topic}: cannot be decoded: {c.decode_error}" for c in undecodable]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _header(profiles: list[LogProfile], actions: list, observations: list) -> list[str]:
+    lines = ["# slearn spec suggested by `slearn info --suggest-spec` from:"]
+    lines += [f"#   {p.path}" for p in profiles]
+    lines += ["#",
+              "# It learns as written. The uncommented entries are every command field and the",
+              f"# {OBSERVATIONS_LIVE} best observation candidates; uncomment others to add them (each "
+              "observation",
+              "# channel makes every step's observation finer, so more must be seen to learn it).",
+              "#",
+              "# mode \"message\": every message of an entry is an event, so a step is a command and",
+              "# the readings that follow it; repeated commands and unchanged readings are part of",
+              "# the task. (\"change\" keeps only changes and predicts a different, easier-looking",
+              "# task; give it per entry with mode = \"change\" only if that is the question.)",
+              'mode = "message"', ""]
+    if not actions:
+        lines[-1:-1] = ["# No command topic was found, so every entry is an observation: the library",
+                        "# learns what the sensors do next by themselves. If a topic carries commands,",
+                        "# set its role = \"action\".", ""]
+    if not observations:
+        lines += ["# No observation field with usable values was found.", ""]
+    return lines
+
+
+def _block_lines(block: _Block, live: set[int]) -> list[str]:
+    c = block.channel
+    rate = f"{c.rate_hz:.1f} Hz" if c.rate_hz else "rate n/a"
+    lines = [f"# --- {c.topic}  ({c.schema or 'schemaless'}, {c.message_encoding}, "
+             f"{c.count:,} messages, {rate})", f"# {block.role}: {block.role_why}"]
+    for reason, paths in block.skipped.items():
+        shown = ", ".join(paths[:6]) + (f", ... ({len(paths)} fields)" if len(paths) > 6 else "")
+        lines.append(f"# skipped ({reason}): {shown}")
+    for candidate in sorted(block.candidates, key=lambda x: (id(x) not in live, x.rank)):
+        lines += _entry_lines(candidate, id(candidate) in live)
+    return lines + [""]
+
+
+def _entry_lines(candidate: Candidate, live: bool) -> list[str]:
+    info = candidate.info
+    examples = ", ".join(f"{v:.6g}" if isinstance(v, float) else repr(v) for v in info.examples[:5])
+    entry = ["[[channel]]", f"topic = {_toml_str(candidate.channel.topic)}",
+             f"field = {_toml_str(info.path)}", f'role = "{candidate.role}"', *candidate.keys]
+    note = [f"# {info.path}: {candidate.why}; e.g. {examples}"]
+    return note + (entry if live else [f"# {line}" for line in entry])
