@@ -53,7 +53,7 @@ def _channel_lines(channel: ChannelProfile, show_fields: bool) -> list[str]:
 
 def _render(profile: LogProfile, show_fields: bool) -> str:
     span = "no messages"
-    if profile.start_ns is not None:
+    if profile.start_ns is not None and profile.end_ns is not None:
         span = (f"{iso_time(profile.start_ns)} ({profile.start_ns / 1e9:.3f} s) to "
                 f"{iso_time(profile.end_ns)} ({profile.end_ns / 1e9:.3f} s)")
     window = f", {profile.window}" if profile.window else ""

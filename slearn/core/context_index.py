@@ -59,12 +59,12 @@ def grow(index: ContextIndex, min_free: int) -> ContextIndex:
     while capacity - n < min_free:
         capacity *= 2
     if capacity == len(index.outcome):
-        return ContextIndex(trie, *per_node, index.outcome, index.weight, index.last_seen, index.next,
+        return ContextIndex(trie, *per_node, index.outcome,  # type: ignore[call-arg]  # 4 per-node arrays index.weight, index.last_seen, index.next,
                             index.size, index.entry_keys, index.entry_vals)
     per_entry = [_extended(a, capacity, fill) for a, fill in
                  ((index.outcome, 0), (index.weight, 0), (index.last_seen, 0), (index.next, -1))]
     slots = hashtrie.table_size(capacity)
-    grown = ContextIndex(trie, *per_node, *per_entry, index.size, np.full(slots, -1, np.int64),
+    grown = ContextIndex(trie, *per_node, *per_entry, index.size,  # type: ignore[call-arg]  # 4 + 4 arrays np.full(slots, -1, np.int64),
                          np.zeros(slots, np.int32))
     _rehash_entries(grown, int(trie.size[0]))
     return grown

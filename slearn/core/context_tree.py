@@ -42,7 +42,7 @@ class Tree(NamedTuple):
     node_slots: np.ndarray  # int32 hash slots of (parent, token)
     owner: np.ndarray       # int32 per entry: its context node
     outcome: np.ndarray     # int32 per entry
-    count: np.ndarray       # int64 per entry
+    count: np.ndarray  # type: ignore[assignment]  # int64 per entry (shadows tuple.count)
     last_seen: np.ndarray   # int64 per entry
     fresh: np.ndarray       # int64 per entry
     next: np.ndarray        # int32 per entry: the next entry of the same node, -1

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import cast
+
 import numpy as np
 
 from slearn.core import context_tree, views
@@ -122,13 +124,14 @@ class PatternLibrary:
     # --- views ------------------------------------------------------------------------
     def _factored_mapping(self) -> np.ndarray:
         """The view of every symbol of the vocabulary (``NO_VIEW`` for actions)."""
-        if len(self._view_of_symbol) == len(self.vocabulary):
+        vocabulary = cast(Vocabulary, self.vocabulary)  # only a factored library maps its symbols
+        if len(self._view_of_symbol) == len(vocabulary):
             return self._view_of_symbol
-        names = [c for c, role in self.vocabulary.roles.items() if role == OBSERVATION_ROLE]
+        names = [c for c, role in vocabulary.roles.items() if role == OBSERVATION_ROLE]
         self._ensure_views(names)
         index = {name: i for i, name in enumerate(self.view_names)}
-        mapping = np.full(len(self.vocabulary), NO_VIEW, np.int32)
-        for symbol, channel, _ in self.vocabulary.items():
+        mapping = np.full(len(vocabulary), NO_VIEW, np.int32)
+        for symbol, channel, _ in vocabulary.items():
             mapping[symbol] = index.get(channel, NO_VIEW)
         self._view_of_symbol = mapping
         return mapping
@@ -217,7 +220,7 @@ class PatternLibrary:
         self.prepare()
         if self._has_actions is None:
             raise ParameterError("encode an episode with this library before running it")
-        state = self.streams if streams is None else streams
+        state = cast(ViewState, self.streams if streams is None else streams)  # prepared above
         if new_episode:
             views.restart(state)
         run = Run(self.has_actions, self.empty_action, self.empty_observation,
@@ -305,7 +308,7 @@ class PatternLibrary:
         tree = library.tree
         _import(tree.parent, tree.token, tree.first, tree.epoch, tree.node_slots, tree.owner,
                 tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next, tree.entry_slots,
-                tree.size, library.streams.root, library.mixer.epoch,
+                tree.size, cast(ViewState, library.streams).root, library.mixer.epoch,
                 np.asarray(arrays["view"], np.int32), offsets,
                 np.asarray(arrays["pattern_tokens"], np.int32), np.asarray(arrays["count"], np.int64),
                 np.asarray(arrays["last_seen"], np.int64), np.asarray(arrays["fresh"], np.int64))

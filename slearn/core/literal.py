@@ -190,7 +190,7 @@ class LiteralLibrary:
     def _forget(self) -> None:
         n = int(self._trie.size[0])
         parent, count = self._trie.parent[:n], self._count[:n]
-        target = int(self.max_patterns * FORGET_TO)
+        target = int((self.max_patterns or 0) * FORGET_TO)  # called only with a bound
         keep_anyway = np.zeros(n, bool)
         keep_anyway[int(self._state[0])] = True
         while int(np.count_nonzero(count)) > target:

@@ -249,11 +249,13 @@ class RosbagsLog(_LogBase):
 
     def _open(self, path: Path):
         if self.profile == "ros1":
-            from rosbags.rosbag1 import Reader
+            from rosbags.rosbag1 import Reader as Ros1Reader
+            reader_type: type = Ros1Reader
         else:
-            from rosbags.rosbag2 import Reader
+            from rosbags.rosbag2 import Reader as Ros2Reader
+            reader_type = Ros2Reader
         try:
-            reader = Reader(path)
+            reader = reader_type(path)
             reader.open()
         except Exception as err:  # rosbags, sqlite and the OS raise many types
             kind = "a ROS 1 bag" if self.profile == "ros1" else "a ROS 2 bag"

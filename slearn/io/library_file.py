@@ -45,7 +45,7 @@ import os
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Hashable, Iterator
+from typing import Any, Hashable, Iterator, cast
 
 import numpy as np
 import pyarrow as pa
@@ -417,8 +417,10 @@ def _numbers(column: pa.ChunkedArray, name: str, path: Path) -> np.ndarray:
 
 
 def _decode_value(kind: str, number: int | None, real: float | None, text: str | None) -> Hashable:
+    if kind in ("int", "bin", "tuple") and number is None and text is None:
+        raise ValueError(f"a {kind} value has neither a number nor a text")
     if kind in ("int", "bin"):
-        return number if number is not None else int(text)
+        return number if number is not None else int(cast(str, text))
     if kind == "bool":
         return bool(number)
     if kind == "float":
@@ -426,7 +428,7 @@ def _decode_value(kind: str, number: int | None, real: float | None, text: str |
     if kind == "str":
         return text
     if kind == "tuple":
-        return _as_tuple(json.loads(text))
+        return _as_tuple(json.loads(cast(str, text)))
     raise ValueError(f"unknown value type {kind!r}")
 
 

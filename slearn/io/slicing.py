@@ -33,7 +33,7 @@ class TimeBound:
         """The log time (ns) of this bound in a log that starts at ``first_ns``."""
         if self.unix_ns is not None:
             return self.unix_ns
-        return first_ns + round(self.seconds * 1e9)
+        return first_ns + round((self.seconds or 0.0) * 1e9)  # a bound has seconds or unix_ns
 
 
 def parse_time_bound(text: str, option: str = "--start") -> TimeBound:
@@ -136,4 +136,6 @@ def _comparable(a: TimeBound, b: TimeBound) -> bool:
 
 
 def _key(bound: TimeBound) -> float:
-    return bound.seconds if bound.seconds is not None else bound.unix_ns
+    if bound.seconds is not None:
+        return bound.seconds
+    return bound.unix_ns or 0

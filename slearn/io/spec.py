@@ -62,6 +62,7 @@ import bisect
 import math
 import tomllib
 from collections import Counter
+import dataclasses
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
@@ -141,7 +142,8 @@ class Bins:
         """Bin boundaries for bisection (not used by ``width`` bins)."""
         if self.range is not None and self.quantiles is None:
             lo, hi = self.range
-            return tuple(lo + (hi - lo) * k / self.count for k in range(1, self.count))
+            count = self.count or 1  # validated: range bins always have a count
+            return tuple(lo + (hi - lo) * k / count for k in range(1, count))
         return self.edges or ()
 
     def n_bins(self) -> int | None:
@@ -163,7 +165,7 @@ class Bins:
         if self.width is not None:
             q = (x - self.origin) / self.width
             return math.floor(q) if abs(q) < _MAX_BIN_INDEX else None
-        return bisect.bisect_right(self._cuts, x)
+        return bisect.bisect_right(self._cuts, x)  # type: ignore[attr-defined]  # set by __post_init__
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_cuts", self.cuts() if self.width is None else ())
@@ -246,7 +248,7 @@ class ChannelSpec:
     field: str
     role: str
     name: str
-    symbolizer: Symbolizer = field(default_factory=Categorical)
+    symbolizer: Symbolizer = dataclasses.field(default_factory=Categorical)
     max_symbols: int | None = None
     mode: str | None = None
 
@@ -400,7 +402,7 @@ def _phase_ns(data: dict, mode: str, tick_ns: int | None, source: str) -> int | 
     if mode != "tick" and ("phase_ms" in data or "phase_ns" in data):
         raise SpecError(f"{source}: phase_ms is for mode \"tick\" (the sampling instant after "
                         f"each tick's commands)")
-    if mode != "tick":
+    if mode != "tick" or tick_ns is None:
         return None
     return _duration_ns(data, "phase", (1, tick_ns), "after the tick's commands: above 0, at "
                         "most one tick", source)
@@ -446,7 +448,7 @@ def _where(source: str, i: int, entry: dict) -> str:
     return f"{source}: channel entry {i + 1} ({topic}{f':{fld}' if fld else ''})"
 
 
-def _build_entry(entry: Any, i: int, topics: list, source: str) -> ChannelSpec:
+def _build_entry(entry: Any, i: int, topics: Counter[str], source: str) -> ChannelSpec:
     where = _where(source, i, entry)
     if not isinstance(entry, dict):
         raise SpecError(f"{where}: an entry is a table with topic, field and role")
@@ -651,7 +653,8 @@ def parse_channel_option(text: str) -> dict:
 
 def _split_field_colons(text: str) -> list[str]:
     """``TOPIC:FIELD:ROLE:OPTIONS``: at most four parts; colons inside brackets stay."""
-    parts, depth, start = [], 0, 0
+    parts: list[str] = []
+    depth = start = 0
     for i, ch in enumerate(text):
         depth += (ch == "[") - (ch == "]")
         if ch == ":" and depth == 0 and len(parts) < 3:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, cast
 
 import numpy as np
 
@@ -104,7 +104,8 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
     started = time.perf_counter()
     curves: dict[str, list[list[float]]] = {rule: [] for rule in RULES}
     ceiling, abstained = [], []
-    first, literal_patterns = None, None
+    first: tuple | None = None  # the first seed's adaptive library, vocabulary and log
+    literal_patterns: int | None = None
     for seed in seeds:
         run = simulate(PointerConfig(condition, trials=trials, seed=seed, switch_trial=trials // 2))
         if first is None:
@@ -124,7 +125,7 @@ def run_condition(condition: str, seeds: list[int], trials: int, out_dir: Path,
             elif literal_patterns is None:
                 literal_patterns = len(library)
         ceiling.append(windowed_percent(oracle_correct(run)))
-    library, vocabulary, log_path = first
+    library, vocabulary, log_path = cast(tuple, first)  # seeds is never empty
     out = ConditionResult(condition, {r: _mean(c) for r, c in curves.items()}, curves, _mean(ceiling),
                           _mean(abstained), len(library), library.nbytes(), literal_patterns or 0,
                           str(log_path))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import matplotlib
 
@@ -36,7 +37,7 @@ def plot_figure2(result: DemoResult, path: str | os.PathLike, *, overwrite: bool
     for condition in result.conditions:
         curve = condition.accuracy["adaptive"]
         x = range(1, len(curve) + 1)
-        style = STYLES.get(condition.condition, {})
+        style: dict[str, Any] = STYLES.get(condition.condition, {})
         ax.plot(x, curve, label=LABELS.get(condition.condition, condition.condition), **style)
         if condition.condition in ("error", "delay"):
             ax.plot(x, condition.ceiling, color=style.get("color"), linewidth=0.8, alpha=0.6,

@@ -136,7 +136,9 @@ class ChannelProfile:
     @property
     def span_ns(self) -> int:
         """Time between the first and the last message."""
-        return (self.last_ns - self.first_ns) if self.count else 0
+        if self.first_ns is None or self.last_ns is None:
+            return 0
+        return self.last_ns - self.first_ns
 
     @property
     def rate_hz(self) -> float | None:
@@ -177,7 +179,9 @@ class LogProfile:
     @property
     def duration_s(self) -> float:
         """Seconds between the first and the last message (0 when fewer than two)."""
-        return (self.end_ns - self.start_ns) / 1e9 if self.start_ns is not None else 0.0
+        if self.start_ns is None or self.end_ns is None:
+            return 0.0
+        return (self.end_ns - self.start_ns) / 1e9
 
     def to_dict(self) -> dict:
         """Plain JSON-able data (``kind`` is ``"log"``; times in ns, ISO 8601 and seconds)."""
@@ -276,7 +280,9 @@ def describe_log(path: str | os.PathLike, max_fields: int = MAX_FIELDS,
 
 def _time_window(log, window: TimeSlice | None) -> tuple[int, int]:
     span = log.time_range() if window is not None else None
-    return window.window(*span) if span is not None else (0, 1 << 64)
+    if window is None or span is None:
+        return (0, 1 << 64)
+    return window.window(*span)
 
 
 def _finish(profile: LogProfile) -> LogProfile:
@@ -284,7 +290,7 @@ def _finish(profile: LogProfile) -> LogProfile:
     firsts = [c.first_ns for c in profile.channels if c.first_ns is not None]
     lasts = [c.last_ns for c in profile.channels if c.last_ns is not None]
     profile.start_ns, profile.end_ns = (min(firsts), max(lasts)) if firsts else (None, None)
-    log_span = (profile.end_ns - profile.start_ns) if firsts else 0
+    log_span = (max(lasts) - min(firsts)) if firsts else 0
     for channel in profile.channels:
         channel.burst = channel.count >= 2 and channel.span_ns < max(BURST_NS, log_span // 100)
         for info in channel.fields:

@@ -108,7 +108,7 @@ def _grid(values: list[float]) -> float | None:
 
 
 def _number_keys(info: FieldInfo) -> tuple[list[str], str]:
-    lo, hi = float(info.min), float(info.max)
+    lo, hi = float(info.min or 0.0), float(info.max or 0.0)  # numeric fields always have both
     step = _grid(info.distinct) if info.n_distinct is not None and len(info.distinct) > 1 else None
     if step is not None:
         count = round((hi - lo) / step) + 1
@@ -171,7 +171,7 @@ def _rank(candidate: Candidate) -> tuple:
     group = 0 if path.startswith("position[") and schema.endswith("JointState") else \
         1 if re.search(r"(^|\.)(position|pos|angle|data)\b", path) else 2
     info = candidate.info
-    spread = (info.max - info.min) if info.min is not None else 0.0
+    spread = (info.max - info.min) if info.min is not None and info.max is not None else 0.0
     return group, -info.changes / max(info.count, 1), -spread, candidate.channel.topic, path
 
 
@@ -210,7 +210,7 @@ def _widen(into: ChannelProfile, other: ChannelProfile) -> None:
         mine = known.get(info.path)
         if mine is None:
             continue
-        if info.min is not None:
+        if info.min is not None and info.max is not None:
             mine.min = info.min if mine.min is None else min(mine.min, info.min)
             mine.max = info.max if mine.max is None else max(mine.max, info.max)
         mine.count, mine.changes = mine.count + info.count, mine.changes + info.changes
