@@ -52,10 +52,10 @@ def measure(trials: int, condition: str, repeat: int) -> dict:
            "slearn": best_rate(lambda: slearn_correct(episode), steps, repeat),
            "numba_vom": {}, "c_vom": {} if c_vom else None}
     for k in ORDERS:
-        out["numba_vom"][k] = best_rate(lambda: CountModel(k).run(obs, act, ppm=None), steps,
+        out["numba_vom"][k] = best_rate(lambda k=k: CountModel(k).run(obs, act, ppm=None), steps,
                                         repeat)
         if c_vom:
-            out["c_vom"][k] = best_rate(lambda: c_vom(tokens, k), steps, repeat)
+            out["c_vom"][k] = best_rate(lambda k=k: c_vom(tokens, k), steps, repeat)
     return out
 
 

@@ -407,7 +407,7 @@ def main() -> None:
                 fuzz_parquet(tally, args.cases, rng, folder, args.timeout)
             elif name == "spec":
                 for _ in range(args.cases):
-                    tally.run(lambda: check_spec(rng), args.timeout)
+                    tally.run(lambda rng=rng: check_spec(rng), args.timeout)
             print(tally.line(time.perf_counter() - start), flush=True)
             tallies.append(tally)
     for tally in tallies:

@@ -23,6 +23,14 @@ class SpecError(InputError):
     """A channel spec is malformed or does not fit the logs."""
 
 
+class DecodeError(InputError):
+    """A channel has no usable decoder, or a payload does not decode."""
+
+
+class FieldPathError(SpecError):
+    """A field path is malformed or names a field the message type does not have."""
+
+
 class LibraryFormatError(InputError):
     """A file is not a readable slearn pattern library."""
 

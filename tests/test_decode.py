@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from slearn.io.decode import (MISSING, DecodeError, DecoderCache, FieldPathError, decode_payload,
-                           iter_scalar_fields, make_decoder, parse_field_path)
+from slearn.errors import DecodeError, FieldPathError
+from slearn.io.decode import (MISSING, DecoderCache, decode_payload, iter_scalar_fields, make_decoder,
+                              parse_field_path)
 from slearn.io.mcap_read import ChannelInfo, SchemaInfo, iter_messages
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"

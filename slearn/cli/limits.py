@@ -8,7 +8,7 @@ import math
 import click
 
 from slearn.io.library_header import MAX_LENGTH, MAX_PATTERNS
-from slearn.recorders.pointer import MAX_TRIALS
+from slearn.recorders.pointer import MAX_TRIALS as MAX_TRIALS  # re-exported with the other limits
 
 MAX_TOP_K = 100
 MAX_GOALS = 1_000_000

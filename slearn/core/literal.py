@@ -22,6 +22,8 @@ from typing import Iterator
 
 import numpy as np
 
+from slearn.errors import ParameterError
+
 from slearn.core import context_index, hashtrie, views
 from slearn.core.context_index import ContextIndex
 from slearn.core.hashtrie import child, child_or_add, path_tokens
@@ -66,9 +68,9 @@ class LiteralLibrary:
 
     def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, max_patterns: int | None = None) -> None:
         if max_length < 1:
-            raise ValueError("max_length must be at least 1")
+            raise ParameterError("max_length must be at least 1")
         if max_patterns is not None and max_patterns < 16:
-            raise ValueError("max_patterns must be at least 16")
+            raise ParameterError("max_patterns must be at least 16")
         self.max_length = int(max_length)
         self.max_patterns = max_patterns
         self.tokens = TokenTable()

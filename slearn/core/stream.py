@@ -7,6 +7,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from slearn.errors import ParameterError
+
 Step = tuple[tuple[int, ...], tuple[int, ...]]
 """``(actions, observations)``: the action events issued at one tick, then the observations."""
 
@@ -29,9 +31,9 @@ class Episode:
 
     def __post_init__(self) -> None:
         if len(self.step_offsets) != len(self.n_actions) + 1:
-            raise ValueError("step_offsets must have one entry more than n_actions")
+            raise ParameterError("step_offsets must have one entry more than n_actions")
         if len(self.step_offsets) and self.step_offsets[-1] != len(self.symbols):
-            raise ValueError("step_offsets must end at len(symbols)")
+            raise ParameterError("step_offsets must end at len(symbols)")
 
     @classmethod
     def from_steps(cls, steps: Iterable[Step]) -> "Episode":
@@ -56,7 +58,7 @@ class Episode:
         """Single-channel shortcut: ``o0, (a1, o1), (a2, o2), ...`` built with numpy."""
         n = len(actions)
         if len(observations) != n:
-            raise ValueError("actions and observations must have the same length")
+            raise ParameterError("actions and observations must have the same length")
         symbols = np.empty(len(first_observation) + 2 * n, dtype=np.int32)
         head = len(first_observation)
         symbols[:head] = first_observation

@@ -28,21 +28,13 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from slearn.errors import InputError, SpecError
+from slearn.errors import DecodeError, FieldPathError
 from slearn.io.mcap_read import ChannelInfo
 
 Decoder = Callable[[bytes], Any]
 
 MISSING = object()
 """Returned by :meth:`FieldPath.get` when a message lacks that element (skip it)."""
-
-
-class DecodeError(InputError):
-    """A channel has no usable decoder, or a payload does not decode."""
-
-
-class FieldPathError(SpecError):
-    """A field path is malformed or names a field the message type does not have."""
 
 
 # --- decoders -------------------------------------------------------------------------

@@ -51,7 +51,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slearn import __version__
 from slearn.errors import InputError, LibraryFormatError
 from slearn.io.files import atomic_write, check_output, regular_file
 from slearn.core.library import PatternLibrary

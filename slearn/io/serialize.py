@@ -48,7 +48,8 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from slearn.io.decode import MISSING, DecodeError, DecoderCache, FieldPath, FieldPathError, decode_payload
+from slearn.io.decode import MISSING, DecoderCache, FieldPath, decode_payload
+from slearn.errors import DecodeError, FieldPathError
 from slearn.io.bags import open_log
 from slearn.io.episodes import EPISODE_TOPIC, episode_name
 from slearn.errors import DataWarning, InputError, SpecError, TruncatedLogWarning

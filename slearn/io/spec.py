@@ -63,11 +63,12 @@ import math
 import tomllib
 from collections import Counter
 import dataclasses
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
 
-from slearn.io.decode import FieldPath, FieldPathError, parse_field_path
+from slearn.io.decode import FieldPath, parse_field_path
+from slearn.errors import FieldPathError
 from slearn.errors import SpecError
 from slearn.core.vocabulary import ACTION, OBSERVATION, ROLES
 
