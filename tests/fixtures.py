@@ -5,6 +5,9 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+SHARED_MCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+"""The real files of ``../shared/data/mcap`` (tests that read them are marked ``shared``)."""
+
 POINTER_TOML = """mode = "message"
 [[channel]]
 topic = "/pointer/command"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from fixtures import SHARED_MCAP
 from slearn.io.bags import log_record, open_log
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.errors import InputError
@@ -21,7 +22,7 @@ from slearn.core.vocabulary import Vocabulary
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "rosbag2_tests"
+SHARED = SHARED_MCAP / "robot" / "rosbag2_tests"
 SPEC = {"channel": [{"topic": "/cmd", "field": "data", "role": "action", "values": [-1, 1]},
                     {"topic": "/pos", "field": "data", "role": "observation"}]}
 T0 = 1_700_000_000_000_000_000
@@ -158,7 +159,7 @@ def test_a_folder_without_metadata_is_refused(tmp_path):
         open_log(tmp_path / "empty")
 
 
-@pytest.mark.skipif(not SHARED.exists(), reason="../shared rosbag2 test bags not available")
+@pytest.mark.shared
 def test_rosbag2_own_split_bags_are_one_log():
     folder = SHARED / "rosbag2_py" / "test" / "resources" / "mcap" / "wbag"
     with open_log(folder) as log:

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from fixtures import SHARED_MCAP
 from slearn.cli import main
 from slearn.io.bags import open_log
 from slearn.datasets.registry import (ARM_TRIALS, HELDOUT_SEEDS, POINTER_TRIALS, TRAIN_SEEDS,
@@ -16,7 +17,7 @@ from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import CONDITIONS
 from slearn.io.spec import load_spec, pointer_spec
 
-PR2_LOG = (Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "ros2_cdr"
+PR2_LOG = (SHARED_MCAP / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")
 
 
@@ -130,7 +131,7 @@ def test_pr2_sample_without_a_log_tells_the_user(tmp_path):
     assert "laser_tilt_mount_joint" in card and "No log was given" in card
 
 
-@pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
+@pytest.mark.shared
 def test_pr2_sample_with_source_splits_it_and_learns_and_replays(tmp_path):
     folder = tmp_path / "pr2"
     summary = build_dataset("pr2-sample", folder, source=PR2_LOG)

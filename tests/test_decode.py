@@ -7,12 +7,13 @@ from pathlib import Path
 import pytest
 from mcap_ros2.writer import Writer as Ros2Writer
 
+from fixtures import SHARED_MCAP
 from slearn.errors import DecodeError, FieldPathError
 from slearn.io.decode import (MISSING, DecoderCache, decode_payload, iter_scalar_fields, make_decoder,
                               parse_field_path)
 from slearn.io.mcap_read import ChannelInfo, SchemaInfo, iter_messages
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+SHARED = SHARED_MCAP
 ROSBAG2 = SHARED / "robot" / "rosbag2_tests" / "rosbag2_tests" / "resources" / "mcap"
 
 JOINT_STATE = """std_msgs/Header header
@@ -140,6 +141,7 @@ def _first_failure(path):
     return cache
 
 
+@pytest.mark.shared
 def test_rosbag2_service_events_and_wrong_format(capfd):
     bag = ROSBAG2 / "bag_with_topics_and_service_events" / "bag_with_topics_and_service_events.mcap"
     wrong = ROSBAG2 / "wrong_rmw_test" / "wrong_rmw_test_0.mcap"
@@ -154,6 +156,7 @@ def test_rosbag2_service_events_and_wrong_format(capfd):
     assert all("wrong_format" in reason for reason in cache.failures.values())
 
 
+@pytest.mark.shared
 def test_protobuf_and_ros1_decode():
     proto = SHARED / "robot" / "protobuf" / "rerun_foxglove_log.mcap"
     ros1 = SHARED / "robot" / "ros1" / "pr2_pr1012_sensors_ros1.mcap"

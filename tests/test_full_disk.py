@@ -51,48 +51,38 @@ def assert_refused(result, folder: Path, old: Path | None = None):
         assert old.read_bytes() == OLD
 
 
-@pytest.fixture(scope="module")
-def pointer(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("p")
-    log = folder / "simple.mcap"
-    record_pointer(PointerConfig("simple", 300, 0), log)
-    library = folder / "lib.parquet"
-    assert run("learn", "-q", log, "-o", library).exit_code == 0
-    return log, library
-
-
 def old_file(folder: Path, name: str) -> Path:
     path = folder / name
     path.write_bytes(OLD)
     return path
 
 
-def test_learn_and_merge(pointer, tmp_path, monkeypatch):
-    log, library = pointer
+def test_learn_and_merge(simple_pointer, tmp_path, monkeypatch):
+    log, library = simple_pointer
     full_disk(monkeypatch, ".parquet")
     out = old_file(tmp_path, "out.parquet")
     assert_refused(run("learn", "-q", log, "-o", out, "--force"), tmp_path, out)
     assert_refused(run("merge", library, library, "-o", out, "--force"), tmp_path, out)
 
 
-def test_info_suggest_spec(pointer, tmp_path, monkeypatch):
+def test_info_suggest_spec(simple_pointer, tmp_path, monkeypatch):
     full_disk(monkeypatch, ".toml")
     out = old_file(tmp_path, "spec.toml")
-    assert_refused(run("info", pointer[0], "--suggest-spec", out, "--force"), tmp_path, out)
+    assert_refused(run("info", simple_pointer[0], "--suggest-spec", out, "--force"), tmp_path, out)
 
 
 @pytest.mark.parametrize("option, name", [("--plot", "curve.png"), ("--report", "report.html"),
                                           ("--write-mcap", "annotated.mcap")])
-def test_replay_outputs(pointer, tmp_path, monkeypatch, option, name):
+def test_replay_outputs(simple_pointer, tmp_path, monkeypatch, option, name):
     full_disk(monkeypatch, Path(name).suffix)
     out = old_file(tmp_path, name)
-    assert_refused(run("replay", pointer[1], pointer[0], option, out, "--force", "-q"), tmp_path, out)
+    assert_refused(run("replay", simple_pointer[1], simple_pointer[0], option, out, "--force", "-q"), tmp_path, out)
 
 
-def test_replay_foxglove_layout(pointer, tmp_path, monkeypatch):
+def test_replay_foxglove_layout(simple_pointer, tmp_path, monkeypatch):
     full_disk(monkeypatch, ".layout.json")
     layout = old_file(tmp_path, "a.layout.json")
-    result = run("replay", pointer[1], pointer[0], "--write-mcap", tmp_path / "a.mcap", "--force", "-q")
+    result = run("replay", simple_pointer[1], simple_pointer[0], "--write-mcap", tmp_path / "a.mcap", "--force", "-q")
     assert_refused(result, tmp_path, layout)
 
 
@@ -135,7 +125,7 @@ def test_datasets_build_then_a_rerun_finishes(tmp_path, monkeypatch, suffix):
     assert "README.md" in (out / "SHA256SUMS").read_text()
 
 
-@pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
+@pytest.mark.shared
 @pytest.mark.parametrize("suffix", ["-train.mcap", "-heldout.mcap"])
 def test_datasets_pr2_split_copies(tmp_path, monkeypatch, suffix):
     out = tmp_path / "pr2"
@@ -168,8 +158,8 @@ def read_only(monkeypatch):
     monkeypatch.setattr(files.os, "open", refuse)
 
 
-def test_a_read_only_folder_is_one_line_for_every_writer(pointer, tmp_path, monkeypatch):
-    log, library = pointer
+def test_a_read_only_folder_is_one_line_for_every_writer(simple_pointer, tmp_path, monkeypatch):
+    log, library = simple_pointer
     out = tmp_path / "out"
     cases = [("learn", "-q", log, "-o", out / "lib.parquet"),
              ("merge", library, library, "-o", out / "lib.parquet"),

@@ -31,16 +31,6 @@ def one_line(result, code=1):
     return lines[0]
 
 
-@pytest.fixture(scope="module")
-def pointer(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("p")
-    log = folder / "simple.mcap"
-    record_pointer(PointerConfig("simple", 500, 0), log)
-    library = folder / "lib.parquet"
-    assert run("learn", "-q", log, "-o", library).exit_code == 0
-    return log, library
-
-
 def copies(tmp_path, *paths):
     out = []
     for path in paths:
@@ -52,8 +42,8 @@ def copies(tmp_path, *paths):
 
 # --- an input is never overwritten -------------------------------------------------------
 
-def test_learn_refuses_to_write_over_its_log_even_with_force(pointer, tmp_path):
-    log, library = copies(tmp_path, *pointer)
+def test_learn_refuses_to_write_over_its_log_even_with_force(simple_pointer, tmp_path):
+    log, library = copies(tmp_path, *simple_pointer)
     before = log.read_bytes()
     os.link(log, tmp_path / "alias.mcap")
     for output in (log, tmp_path / "alias.mcap", tmp_path / "." / log.name):
@@ -64,8 +54,8 @@ def test_learn_refuses_to_write_over_its_log_even_with_force(pointer, tmp_path):
     assert log.read_bytes() == before and load_library(library)
 
 
-def test_merge_replay_info_and_record_refuse_their_inputs(pointer, tmp_path):
-    log, library = copies(tmp_path, *pointer)
+def test_merge_replay_info_and_record_refuse_their_inputs(simple_pointer, tmp_path):
+    log, library = copies(tmp_path, *simple_pointer)
     before = {p: p.read_bytes() for p in (log, library)}
     cases = [
         ("merge", library, library, "-o", library, "--force"),
@@ -90,7 +80,7 @@ def test_merge_replay_info_and_record_refuse_their_inputs(pointer, tmp_path):
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):
-    """The pointer log with every chunk's CRC wrong: nothing can be salvaged."""
+    """The simple_pointer log with every chunk's CRC wrong: nothing can be salvaged."""
     data = bytearray(good_log.read_bytes())
     pos = 8
     while pos + 9 <= len(data):
@@ -105,8 +95,8 @@ def _damaged_pointer(tmp_path, good_log):
     return path
 
 
-def test_nothing_salvaged_exits_1_and_leaves_the_old_library(pointer, tmp_path):
-    log, library = copies(tmp_path, *pointer)
+def test_nothing_salvaged_exits_1_and_leaves_the_old_library(simple_pointer, tmp_path):
+    log, library = copies(tmp_path, *simple_pointer)
     before = library.read_bytes()
     damaged = _damaged_pointer(tmp_path, log)
     spec = tmp_path / "spec.toml"
@@ -122,11 +112,11 @@ def test_nothing_salvaged_exits_1_and_leaves_the_old_library(pointer, tmp_path):
     line = one_line(run("learn", "-q", lost, "-o", tmp_path / "new.parquet"))
     assert line.startswith(f"slearn: error: nothing could be read: {lost}: truncated or corrupt log")
     assert "1 unreadable chunk(s) skipped" in line
-    assert "not a pointer log" not in line and not (tmp_path / "new.parquet").exists()
+    assert "not a simple_pointer log" not in line and not (tmp_path / "new.parquet").exists()
 
 
-def test_a_damaged_log_among_good_ones_is_skipped_with_exit_3(pointer, tmp_path):
-    log, _ = copies(tmp_path, *pointer)
+def test_a_damaged_log_among_good_ones_is_skipped_with_exit_3(simple_pointer, tmp_path):
+    log, _ = copies(tmp_path, *simple_pointer)
     damaged = _damaged_pointer(tmp_path, log)
     result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet")
     assert result.exit_code == EXIT_TRUNCATED and "chunk CRC mismatch" in result.stderr
@@ -148,8 +138,8 @@ def test_undecodable_payloads_are_counted_per_channel_and_skipped(tmp_path):
     assert load_library(tmp_path / "lib.parquet").library.clock == 10  # 10 steps
 
 
-def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(pointer, tmp_path):
-    damaged = _damaged_pointer(tmp_path, pointer[0])
+def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(simple_pointer, tmp_path):
+    damaged = _damaged_pointer(tmp_path, simple_pointer[0])
     line = one_line(run("learn", "-q", damaged, "-o", tmp_path / "lib.parquet",
                         "--channel", "/pointer/position:position:observation:quantiles=4"))
     assert "no numeric value in the training logs to fit quantile bins on (the log is damaged: " in line
@@ -157,10 +147,10 @@ def test_quantile_fitting_on_a_damaged_log_says_the_log_is_damaged(pointer, tmp_
 
 # --- cheap checks before long work ---------------------------------------------------------
 
-def test_a_bad_provenance_stops_resume_before_any_learning(pointer, tmp_path, monkeypatch):
+def test_a_bad_provenance_stops_resume_before_any_learning(simple_pointer, tmp_path, monkeypatch):
     import slearn.jobs.learn as learn
 
-    log, library = pointer
+    log, library = simple_pointer
     bad = edited(library, tmp_path, _set("provenance.inputs.0.sha256", "nope"))
     monkeypatch.setattr(learn, "_learn_episodes", lambda *a: pytest.fail("learned before checking"))
     line = one_line(run("learn", "-q", log, "--resume", bad, "-o", tmp_path / "out.parquet"))
@@ -168,11 +158,11 @@ def test_a_bad_provenance_stops_resume_before_any_learning(pointer, tmp_path, mo
 
 
 @pytest.mark.parametrize("epoch", ["100000000000000000", "-1", "soon"])
-def test_a_bad_source_date_epoch_stops_before_learning(pointer, tmp_path, monkeypatch, epoch):
+def test_a_bad_source_date_epoch_stops_before_learning(simple_pointer, tmp_path, monkeypatch, epoch):
     import slearn.jobs.learn as learn
 
     monkeypatch.setattr(learn, "_learn_episodes", lambda *a: pytest.fail("learned before checking"))
-    line = one_line(run("learn", "-q", pointer[0], "-o", tmp_path / "out.parquet",
+    line = one_line(run("learn", "-q", simple_pointer[0], "-o", tmp_path / "out.parquet",
                         env={"SOURCE_DATE_EPOCH": epoch}))
     assert "SOURCE_DATE_EPOCH must be an integer from 0 to 253402300799" in line
 
@@ -194,8 +184,8 @@ def test_a_bad_source_date_epoch_stops_before_learning(pointer, tmp_path, monkey
     ("values=1;1.0", "`values` must be distinct"),
     ("max_symbols=0", "`max_symbols` must be an integer from 1 to 2,147,483,647"),
 ])
-def test_spec_values_out_of_range_are_one_line_errors(pointer, tmp_path, options, message):
-    line = one_line(run("learn", "-q", pointer[0], "-o", tmp_path / "lib.parquet",
+def test_spec_values_out_of_range_are_one_line_errors(simple_pointer, tmp_path, options, message):
+    line = one_line(run("learn", "-q", simple_pointer[0], "-o", tmp_path / "lib.parquet",
                         "--channel", f"/pointer/position:position:observation:{options}",
                         "--channel", "/pointer/command:command:action"))
     assert message in line
@@ -208,10 +198,10 @@ def test_spec_values_out_of_range_are_one_line_errors(pointer, tmp_path, options
     ('mode = "tick"\ntick_ms = "100"\n', "`tick_ms` must be a number"),
     ('mode = "tick"\ntick_ns = 0\n', "`tick_ns` must be a number from 1 to 8.64e+13"),
 ])
-def test_tick_periods_out_of_range_are_one_line_errors(pointer, tmp_path, text, message):
+def test_tick_periods_out_of_range_are_one_line_errors(simple_pointer, tmp_path, text, message):
     spec = tmp_path / "spec.toml"
     spec.write_text(text + POINTER_TOML.replace('mode = "message"\n', ""))
-    assert message in one_line(run("learn", "-q", pointer[0], "--spec", spec, "-o", tmp_path / "lib.parquet"))
+    assert message in one_line(run("learn", "-q", simple_pointer[0], "--spec", spec, "-o", tmp_path / "lib.parquet"))
 
 
 @pytest.mark.parametrize("args, message", [
@@ -219,8 +209,8 @@ def test_tick_periods_out_of_range_are_one_line_errors(pointer, tmp_path, text, 
     (["--max-patterns", "100000000000000000000"], "is not in the range 16<=x<=2147483647"),
     (["--max-patterns", "-4"], "is not in the range 16<=x<=2147483647"),
 ])
-def test_learner_options_out_of_range_are_usage_errors_naming_the_range(pointer, tmp_path, args, message):
-    result = run("learn", "-q", pointer[0], "-o", tmp_path / "lib.parquet", *args)
+def test_learner_options_out_of_range_are_usage_errors_naming_the_range(simple_pointer, tmp_path, args, message):
+    result = run("learn", "-q", simple_pointer[0], "-o", tmp_path / "lib.parquet", *args)
     assert result.exit_code == 2 and message in result.stderr
 
 
@@ -230,8 +220,8 @@ def test_option_limits_are_stated_in_help():
     assert "SLEARN_MAX_CHUNK_MB" in run("--help").stdout
 
 
-def test_nan_fail_under_is_refused(pointer, tmp_path):
-    result = run("replay", pointer[1], pointer[0], "--fail-under", "nan", "-q")
+def test_nan_fail_under_is_refused(simple_pointer, tmp_path):
+    result = run("replay", simple_pointer[1], simple_pointer[0], "--fail-under", "nan", "-q")
     assert result.exit_code == 2 and "not a finite number" in result.stderr
 
 
@@ -296,8 +286,8 @@ def test_ros1_strings_that_are_not_utf8_keep_the_output_one_line(tmp_path, capfd
     assert values == ["ok", "bad \ufffd\ufffd"]
 
 
-def test_json_output_of_a_salvaged_learn_is_one_document(pointer, tmp_path):
-    log, _ = copies(tmp_path, *pointer)
+def test_json_output_of_a_salvaged_learn_is_one_document(simple_pointer, tmp_path):
+    log, _ = copies(tmp_path, *simple_pointer)
     damaged = _damaged_pointer(tmp_path, log)
     result = run("learn", "-q", log, damaged, "-o", tmp_path / "both.parquet", "--json")
     assert result.exit_code == EXIT_TRUNCATED

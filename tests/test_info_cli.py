@@ -12,9 +12,9 @@ from click.testing import CliRunner
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.jobs.info import describe_log, suggest_spec
 from slearn.io.spec import load_spec
-from fixtures import write_log
+from fixtures import SHARED_MCAP, write_log
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+SHARED = SHARED_MCAP
 
 
 @pytest.fixture
@@ -117,6 +117,7 @@ def test_suggest_spec_merges_logs(log):
     assert text.count("# --- /state") == 1
 
 
+@pytest.mark.shared
 def test_real_logs_profile():
     pr2 = SHARED / "robot" / "ros2_cdr" / "pr2_pr1012_sensors_ros2.mcap"
     if not pr2.exists():

@@ -10,10 +10,11 @@ from pathlib import Path
 import pytest
 from mcap.writer import CompressionType, IndexType, Writer
 
+from fixtures import SHARED_MCAP
 from slearn.errors import InputError, TruncatedLogWarning
 from slearn.io.mcap_read import McapLog, ReadReport, iter_messages
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+SHARED = SHARED_MCAP
 DERIVED = SHARED / "derived"
 PR2_FIRST = "pr2_pr1012_sensors_ros2_first1.0s__"
 
@@ -170,6 +171,7 @@ def _conformance_expected(json_path):
     return sorted(messages, key=lambda m: m[0])
 
 
+@pytest.mark.shared
 def test_all_conformance_files_yield_exactly_their_messages():
     folder = SHARED / "conformance"
     if not folder.is_dir():
@@ -191,6 +193,7 @@ def _derived(name):
     return path
 
 
+@pytest.mark.shared
 @pytest.mark.parametrize("name", ["chunkindex_no_messageindex", "lz4_chunk64k", "unchunked_nosummary",
                                   "uncompressed_chunk64k", "zstd_chunk16k"])
 def test_derived_layouts_give_the_same_453_messages(name):
@@ -201,6 +204,7 @@ def test_derived_layouts_give_the_same_453_messages(name):
     assert [t for t, _, _ in got] == sorted(t for t, _, _ in got)
 
 
+@pytest.mark.shared
 @pytest.mark.parametrize("permille, salvaged", [(500, 204), (999, 453)])
 def test_derived_truncated_files_salvage_and_warn(permille, salvaged):
     path = _derived(f"uncompressed_chunk64k__truncated_{permille}permille.mcap")

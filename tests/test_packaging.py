@@ -27,7 +27,8 @@ def test_only_top_level_package_is_slearn(wheel):
 def test_subpackages_are_installed_under_slearn(wheel):
     names = set(wheel.namelist())
     for module in ("slearn/recorders/pointer.py", "slearn/replay/__init__.py", "slearn/datasets/__init__.py",
-                   "slearn/cli/__init__.py", "slearn/core/library.py"):
+                   "slearn/cli/__init__.py", "slearn/core/library.py", "slearn/io/mcap_read.py",
+                   "slearn/jobs/learn.py", "slearn/py.typed"):
         assert module in names
     assert any(n.startswith("slearn/datasets/") and n.endswith(".toml") for n in names)
 

@@ -20,6 +20,7 @@ from click.testing import CliRunner
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from fixtures import SHARED_MCAP
 from slearn.cli import main
 from slearn.recorders.arm import ArmConfig, simulate_arm
 from slearn.recorders.pointer import BIN_DEG, PointerConfig, simulate
@@ -29,7 +30,7 @@ from slearn.io.spec import load_spec
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-PR2_LOG = (Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap" / "robot" / "ros2_cdr"
+PR2_LOG = (SHARED_MCAP / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")
 TRAIN_SEEDS, HELDOUT_SEED, TRIALS = (0, 1, 2, 3), 4, 10_000
 T0 = 1_700_000_000_000_000_000
@@ -210,7 +211,7 @@ def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_pat
     assert all(c["accuracy"] >= 0.99 for c in doc["channels"])
 
 
-@pytest.mark.skipif(not PR2_LOG.exists(), reason="../shared PR2 log not available")
+@pytest.mark.shared
 def test_the_pr2_log_lists_every_joint_and_splits_honestly(tmp_path):
     info = invoke("info", PR2_LOG, "--json", "--topics", "/joint_states")
     assert info.exit_code == 0, info.output

@@ -12,9 +12,9 @@ from slearn.errors import SpecError, TruncatedLogWarning
 from slearn.io.serialize import fit_spec, read_episodes
 from slearn.io.spec import Spec, load_spec, pointer_spec
 from slearn.core.vocabulary import Vocabulary
-from fixtures import write_log
+from fixtures import SHARED_MCAP, write_log
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mcap"
+SHARED = SHARED_MCAP
 ROBOT = SHARED / "robot"
 
 
@@ -189,6 +189,7 @@ width = 0.01
 """
 
 
+@pytest.mark.shared
 def test_pr2_ros2_and_ros1_give_the_identical_event_stream(tmp_path):
     ros2 = _shared("ros2_cdr", "pr2_pr1012_sensors_ros2.mcap")
     ros1 = _shared("ros1", "pr2_pr1012_sensors_ros1.mcap")
@@ -202,6 +203,7 @@ def test_pr2_ros2_and_ros1_give_the_identical_event_stream(tmp_path):
     assert {channel for _, channel, _ in v2.items()} == {c.name for c in spec.channels}
 
 
+@pytest.mark.shared
 def test_rosbag2_service_events_and_wrong_format_are_clear_errors():
     bags = ("rosbag2_tests", "rosbag2_tests", "resources", "mcap")
     services = _shared(*bags, "bag_with_topics_and_service_events", "bag_with_topics_and_service_events.mcap")
