@@ -33,6 +33,7 @@ from slearn.core import context_tree, mixer
 from slearn.core.library import PatternLibrary
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
+from timing import best_seconds
 
 _SOURCE = Path(__file__).parent / "c" / "learn.c"
 _TREE_FIELDS = ("parent", "token", "first", "best", "newest", "fresh_best", "epoch", "node_slots",
@@ -99,16 +100,6 @@ def same_library(a: PatternLibrary, b: PatternLibrary) -> list[str]:
         if np.asarray(x).tobytes() != np.asarray(y).tobytes():
             diff.append(name)
     return diff + (["clock"] if a.clock != b.clock else [])
-
-
-def best_seconds(work, repeat: int) -> float:
-    work()
-    times = []
-    for _ in range(repeat):
-        started = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - started)
-    return min(times)
 
 
 def measure(name: str, episode, vocabulary, c_learn, repeat: int) -> dict:

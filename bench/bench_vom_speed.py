@@ -19,26 +19,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from typing import Callable
 
 from peers import CountModel, load_c_vom, step_tokens
 from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.core.tokens import TokenTable
 from slearn_adapter import slearn_correct
+from timing import best_seconds
 
 ORDERS = range(1, 7)
 
 
 def best_rate(work: Callable[[], object], steps: int, repeat: int) -> float:
     """Steps per second of the fastest of ``repeat`` runs, after one warm-up."""
-    work()
-    times = []
-    for _ in range(repeat):
-        started = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - started)
-    return steps / min(times)
+    return steps / best_seconds(work, repeat)
 
 
 def measure(trials: int, condition: str, repeat: int) -> dict:

@@ -44,6 +44,7 @@ import pyarrow.parquet as pq  # noqa: E402
 import zstandard  # noqa: E402
 
 import mcap_bytes as mb  # noqa: E402
+from fuzz_cases import SPEC, base_logs, json_paths, record_bounds  # noqa: E402
 from slearn.errors import SlearnError  # noqa: E402
 from slearn.jobs.info import describe_log  # noqa: E402
 from slearn.core.library import PatternLibrary  # noqa: E402
@@ -53,9 +54,6 @@ from slearn.io.library_info import describe  # noqa: E402
 from slearn.io.library_file import METADATA_KEY, load_library, save_library  # noqa: E402
 from slearn.core.vocabulary import Vocabulary  # noqa: E402
 
-SPEC = Spec.from_dict({"mode": "change", "channel": [
-    {"topic": "/a", "field": "v", "role": "observation", "width": 0.5},
-    {"topic": "/b", "field": "c", "role": "action"}]})
 MAX_INPUT = 10 << 20
 MIB = 1 << 20
 
@@ -69,28 +67,6 @@ def _alarm(signum, frame):
 
 
 # --- mcap -----------------------------------------------------------------------------------
-
-def base_logs() -> list[bytes]:
-    records = []
-    for t in range(60):
-        records.append(mb.message(t, b'{"v": %d.5}' % (t % 7)))
-        records.append(mb.message(t, b'{"c": "%s"}' % b"LR"[t % 2:t % 2 + 1], channel_id=2))
-    groups = [b"".join(records[i:i + 12]) for i in range(0, len(records), 12)]
-    b_channel = mb.channel(2, "/b")
-    logs = [mb.log(b_channel, *(mb.chunk(g, c) for g in groups)) for c in ("zstd", "lz4", "")]
-    return logs + [mb.log(b_channel, *records)]
-
-
-def record_bounds(data: bytes) -> list[tuple[int, int]]:
-    bounds, pos = [], 8
-    while pos + 9 <= len(data):
-        end = pos + 9 + struct.unpack_from("<Q", data, pos + 1)[0]
-        if end > len(data):
-            break
-        bounds.append((pos, end))
-        pos = end
-    return bounds
-
 
 def mutate(rng: random.Random, data: bytes) -> bytes:
     data = bytearray(data)
@@ -241,16 +217,6 @@ def random_json(rng: random.Random, depth: int = 0):
     return scalars[kind]
 
 
-def _paths(doc, prefix=()):
-    yield prefix
-    if isinstance(doc, dict):
-        for key, value in doc.items():
-            yield from _paths(value, prefix + (key,))
-    elif isinstance(doc, list):
-        for i, value in enumerate(doc):
-            yield from _paths(value, prefix + (i,))
-
-
 def mutated_header(rng: random.Random, doc: dict) -> bytes:
     if rng.random() < 0.3:
         text = bytearray(json.dumps(doc).encode())
@@ -259,7 +225,7 @@ def mutated_header(rng: random.Random, doc: dict) -> bytes:
         return bytes(text)
     doc = json.loads(json.dumps(doc))
     for _ in range(rng.randint(1, 3)):
-        path = rng.choice([p for p in _paths(doc) if p])
+        path = rng.choice([p for p in json_paths(doc) if p])
         target = doc
         for key in path[:-1]:
             target = target[key]
@@ -399,7 +365,7 @@ def main() -> None:
         for name in args.classes.split(","):
             rng, tally, start = random.Random(f"{args.seed}-{name}"), Tally(name), time.perf_counter()
             if name == "mcap":
-                fuzz_logs(tally, base_logs(), args.cases, rng, folder, args.timeout,
+                fuzz_logs(tally, base_logs(60, 12), args.cases, rng, folder, args.timeout,
                           lambda r, files: mutate(r, r.choice(files)))
             elif name == "bomb":
                 fuzz_logs(tally, bomb_payloads(), args.cases, rng, folder, args.timeout, bomb_file)

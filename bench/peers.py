@@ -231,25 +231,27 @@ def _key(parent, kind, token):
 
 
 @numba.njit(inline="always")
-def _find(keys, values, key):
+def _probe(keys, key):
+    """The slot holding ``key``, or the empty slot where it would go (linear probing)."""
     mask = len(keys) - 1
     s = _slot(key, mask)
-    while keys[s] != -1:
-        if keys[s] == key:
-            return values[s]
+    while keys[s] != -1 and keys[s] != key:
         s = (s + 1) & mask
-    return -1
+    return s
+
+
+@numba.njit(inline="always")
+def _find(keys, values, key):
+    s = _probe(keys, key)
+    return values[s] if keys[s] == key else -1
 
 
 @numba.njit(inline="always")
 def _find_or_add(keys, values, sizes, key, counter):
     """The id stored under ``key``, or a new id from ``sizes[counter]``."""
-    mask = len(keys) - 1
-    s = _slot(key, mask)
-    while keys[s] != -1:
-        if keys[s] == key:
-            return values[s]
-        s = (s + 1) & mask
+    s = _probe(keys, key)
+    if keys[s] == key:
+        return values[s]
     new = sizes[counter]
     sizes[counter] = new + 1
     sizes[0] += 1

@@ -14,7 +14,6 @@ import pyarrow.parquet as pq
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-import mcap_bytes as mb
 from slearn.errors import SlearnError
 from slearn.jobs.info import describe_log
 from slearn.core.library import PatternLibrary
@@ -24,6 +23,7 @@ from slearn.io.library_info import describe
 from slearn.io.library_file import METADATA_KEY, load_library
 from slearn.core.vocabulary import Vocabulary
 
+from fuzz_cases import SPEC, base_logs, json_paths, record_bounds
 from test_storage import learned, save
 
 
@@ -35,36 +35,7 @@ def fuzz(examples: int):
 
 
 
-SPEC = Spec.from_dict({"mode": "change", "channel": [
-    {"topic": "/a", "field": "v", "role": "observation", "width": 0.5},
-    {"topic": "/b", "field": "c", "role": "action"}]})
-
-
-def base_logs() -> list[bytes]:
-    """Small valid logs in several layouts (chunked zstd / lz4 / none, unchunked)."""
-    records = []
-    for t in range(40):
-        records.append(mb.message(t, b'{"v": %d.5}' % (t % 7)))
-        records.append(mb.message(t, b'{"c": "%s"}' % b"LR"[t % 2:t % 2 + 1], channel_id=2))
-    groups = [b"".join(records[i:i + 10]) for i in range(0, len(records), 10)]
-    b_channel = mb.channel(2, "/b")
-    logs = [mb.log(b_channel, *(mb.chunk(g, c) for g in groups)) for c in ("zstd", "lz4", "")]
-    return logs + [mb.log(b_channel, *records)]
-
-
 BASES = base_logs()
-
-
-def record_bounds(data: bytes) -> list[tuple[int, int]]:
-    """Top-level records after the magic, as ``(start, end)``."""
-    bounds, pos = [], 8
-    while pos + 9 <= len(data):
-        end = pos + 9 + struct.unpack_from("<Q", data, pos + 1)[0]
-        if end > len(data):
-            break
-        bounds.append((pos, end))
-        pos = end
-    return bounds
 
 
 @st.composite
@@ -141,16 +112,6 @@ JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_
                     max_leaves=8)
 
 
-def _paths(doc, prefix=()):
-    yield prefix
-    if isinstance(doc, dict):
-        for key, value in doc.items():
-            yield from _paths(value, prefix + (key,))
-    elif isinstance(doc, list):
-        for i, value in enumerate(doc):
-            yield from _paths(value, prefix + (i,))
-
-
 @st.composite
 def mutated_header(draw, doc: dict) -> bytes:
     doc = json.loads(json.dumps(doc))
@@ -160,7 +121,7 @@ def mutated_header(draw, doc: dict) -> bytes:
             text[draw(st.integers(0, len(text) - 1))] = draw(st.integers(0, 255))
         return bytes(text)
     for _ in range(draw(st.integers(1, 3))):
-        paths = [p for p in _paths(doc) if p]
+        paths = [p for p in json_paths(doc) if p]
         path = draw(st.sampled_from(paths))
         target = doc
         for key in path[:-1]:

@@ -20,6 +20,7 @@ import numpy as np
 
 from slearn.core import hashtrie
 from slearn.core.hashtrie import child_or_add, pair_key, path_tokens, probe
+from slearn.core.hashtable import doubled
 from slearn.core._jit import helper, kernel
 
 ContextIndex = namedtuple(
@@ -55,17 +56,15 @@ def grow(index: ContextIndex, min_free: int) -> ContextIndex:
     per_node = [_extended(a, len(trie.parent), fill)
                 for a, fill in ((index.head, -1), (index.best, -1), (index.newest, -1), (index.total, 0))]
     n = int(index.size[0])
-    capacity = len(index.outcome)
-    while capacity - n < min_free:
-        capacity *= 2
+    capacity = doubled(len(index.outcome), n, min_free)
     if capacity == len(index.outcome):
-        return ContextIndex(trie, *per_node, index.outcome,  # type: ignore[call-arg]  # 4 per-node arrays index.weight, index.last_seen, index.next,
-                            index.size, index.entry_keys, index.entry_vals)
+        return ContextIndex(trie, *per_node, index.outcome, index.weight,  # type: ignore[call-arg]
+                            index.last_seen, index.next, index.size, index.entry_keys, index.entry_vals)
     per_entry = [_extended(a, capacity, fill) for a, fill in
                  ((index.outcome, 0), (index.weight, 0), (index.last_seen, 0), (index.next, -1))]
     slots = hashtrie.table_size(capacity)
-    grown = ContextIndex(trie, *per_node, *per_entry, index.size,  # type: ignore[call-arg]  # 4 + 4 arrays np.full(slots, -1, np.int64),
-                         np.zeros(slots, np.int32))
+    grown = ContextIndex(trie, *per_node, *per_entry, index.size,  # type: ignore[call-arg]
+                         np.full(slots, -1, np.int64), np.zeros(slots, np.int32))
     _rehash_entries(grown, int(trie.size[0]))
     return grown
 

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core import hashtable
-from slearn.core.hashtable import EMPTY, find, probe
+from slearn.core.hashtable import EMPTY, doubled, find, probe
 from slearn.core._jit import helper
 
 
@@ -76,10 +76,7 @@ def grow(tree: Tree, nodes: int, entries: int) -> Tree:
     """A copy with room for at least ``nodes`` more nodes and ``entries`` more entries."""
     n, m = int(tree.size[0]), int(tree.size[1])
     node_cap, entry_cap = len(tree.parent), len(tree.owner)
-    while node_cap - n < nodes:
-        node_cap *= 2
-    while entry_cap - m < entries:
-        entry_cap *= 2
+    node_cap, entry_cap = doubled(node_cap, n, nodes), doubled(entry_cap, m, entries)
     if node_cap == len(tree.parent) and entry_cap == len(tree.owner):
         return tree
     fresh = new_tree(node_cap, entry_cap)

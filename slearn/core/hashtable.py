@@ -23,6 +23,13 @@ def slots_for(capacity: int) -> int:
     return 1 << int(2 * max(int(capacity), 8) - 1).bit_length()
 
 
+def doubled(capacity: int, used: int, more: int) -> int:
+    """``capacity`` doubled as often as needed to hold ``more`` records past ``used``."""
+    while capacity - used < more:
+        capacity *= 2
+    return capacity
+
+
 def new_slots(capacity: int) -> np.ndarray:
     """An empty table for ``capacity`` records."""
     return np.full(slots_for(capacity), EMPTY, np.int32)

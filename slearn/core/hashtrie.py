@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
+from slearn.core.hashtable import doubled
 from slearn.core._jit import helper, kernel
 
 Trie = namedtuple("Trie", "parent token keys vals size")
@@ -48,9 +49,7 @@ def free_nodes(trie: Trie) -> int:
 
 def grow(trie: Trie, min_free: int) -> Trie:
     """A copy of ``trie`` with room for at least ``min_free`` more nodes (doubling)."""
-    capacity = len(trie.parent)
-    while capacity - int(trie.size[0]) < min_free:
-        capacity *= 2
+    capacity = doubled(len(trie.parent), int(trie.size[0]), min_free)
     if capacity == len(trie.parent):
         return trie
     n = int(trie.size[0])

@@ -13,6 +13,7 @@ from collections import namedtuple
 import numpy as np
 
 from slearn.core.stream import Episode
+from slearn.core.hashtable import doubled
 from slearn.core._jit import helper, kernel
 
 OBSERVATION = 0
@@ -48,10 +49,7 @@ class TokenTable:
         n = len(self)
         used = int(a.offsets[n])
         capacity, symbol_capacity = len(a.kinds), len(a.symbols)
-        while capacity - n < tokens:
-            capacity *= 2
-        while symbol_capacity - used < symbols:
-            symbol_capacity *= 2
+        capacity, symbol_capacity = doubled(capacity, n, tokens), doubled(symbol_capacity, used, symbols)
         if capacity == len(a.kinds) and symbol_capacity == len(a.symbols):
             return
         fresh = _new_arrays(capacity, symbol_capacity)

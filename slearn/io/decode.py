@@ -182,16 +182,17 @@ _SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)?((?:\[[^\]]*\])*)$")
 _SELECTOR = re.compile(r"\[([^\]]*)\]")
 
 
-def _split_dots(text: str) -> list[str]:
-    """Split on dots outside brackets."""
-    parts, depth, start = [], 0, 0
+def split_outside_brackets(text: str, sep: str, max_splits: int = -1) -> list[str]:
+    """Split ``text`` on ``sep`` where it is not inside ``[...]``, at most ``max_splits``
+    times (all when negative), as ``str.split`` does."""
+    parts: list[str] = []
+    depth = start = 0
     for i, ch in enumerate(text):
         depth += (ch == "[") - (ch == "]")
-        if ch == "." and depth == 0:
+        if ch == sep and depth == 0 and len(parts) != max_splits:
             parts.append(text[start:i])
             start = i + 1
-    parts.append(text[start:])
-    return parts
+    return parts + [text[start:]]
 
 
 def _parse_selector(raw: str, path: str) -> tuple:
@@ -216,7 +217,7 @@ def parse_field_path(path: str) -> "FieldPath":
     steps: list[tuple] = []
     if not path.strip():
         return FieldPath(path, ())
-    for part in _split_dots(path.strip()):
+    for part in split_outside_brackets(path.strip(), "."):
         m = _SEGMENT.match(part)
         if m is None or (not m.group(1) and not m.group(2)):
             raise FieldPathError(f"field {path!r}: cannot parse {part!r}")

@@ -67,7 +67,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
 
-from slearn.io.decode import FieldPath, parse_field_path
+from slearn.io.decode import FieldPath, parse_field_path, split_outside_brackets
 from slearn.errors import FieldPathError
 from slearn.errors import SpecError
 from slearn.core.vocabulary import ACTION, OBSERVATION, ROLES
@@ -608,17 +608,6 @@ def _literal(text: str) -> Any:
     return {"true": True, "false": False}.get(text.lower(), text)
 
 
-def _split_outside_brackets(text: str) -> list[str]:
-    """Split on commas that are not inside ``[...]``."""
-    parts, depth, start = [], 0, 0
-    for i, ch in enumerate(text):
-        depth += (ch == "[") - (ch == "]")
-        if ch == "," and depth == 0:
-            parts.append(text[start:i])
-            start = i + 1
-    return parts + [text[start:]]
-
-
 def _option_items(value: str) -> list:
     inner = value.strip()
     if inner.startswith("[") and inner.endswith("]"):
@@ -636,12 +625,12 @@ def parse_channel_option(text: str) -> dict:
     Raises:
         SpecError: fewer than three parts or a malformed option.
     """
-    parts = _split_field_colons(text)
+    parts = split_outside_brackets(text, ":", 3)  # TOPIC:FIELD:ROLE:OPTIONS
     if len(parts) < 3:
         raise SpecError(f"--channel {text!r}: expected TOPIC:FIELD:ROLE[:OPTIONS], "
                         f"e.g. /pointer/command:command:action:values=[L,R]")
     entry: dict[str, Any] = {"topic": parts[0], "field": parts[1], "role": parts[2]}
-    for option in (_split_outside_brackets(parts[3]) if len(parts) == 4 and parts[3] else []):
+    for option in (split_outside_brackets(parts[3], ",") if len(parts) == 4 and parts[3] else []):
         key, eq, value = option.partition("=")
         if not eq or not key.strip():
             raise SpecError(f"--channel {text!r}: option {option!r} must be key=value "
@@ -650,18 +639,6 @@ def parse_channel_option(text: str) -> dict:
         listy = key.strip() in ("values", "edges", "range") or len(items) > 1
         entry[key.strip()] = items if listy else (items[0] if items else "")
     return entry
-
-
-def _split_field_colons(text: str) -> list[str]:
-    """``TOPIC:FIELD:ROLE:OPTIONS``: at most four parts; colons inside brackets stay."""
-    parts: list[str] = []
-    depth = start = 0
-    for i, ch in enumerate(text):
-        depth += (ch == "[") - (ch == "]")
-        if ch == ":" and depth == 0 and len(parts) < 3:
-            parts.append(text[start:i])
-            start = i + 1
-    return parts + [text[start:]]
 
 
 def spec_from_options(channels: Iterable[str], mode: str = DEFAULT_MODE,
