@@ -288,8 +288,7 @@ class Planner:
         trie = self._states
         used = int(trie.size[0])
         self._node_state[:used] = _NO_STATE
-        trie.keys.fill(-1)
-        trie.size[0] = 1
+        hashtrie.clear(trie)
 
 
 def _best_action(q: np.ndarray, reach: np.ndarray) -> int:

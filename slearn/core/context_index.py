@@ -18,31 +18,30 @@ from collections import namedtuple
 
 import numpy as np
 
-from slearn.core import hashtrie
-from slearn.core.hashtrie import child_or_add, pair_key, path_tokens, probe
-from slearn.core.hashtable import doubled
+from slearn.core import hashtable, hashtrie
 from slearn.core._jit import helper, kernel
+from slearn.core.hashtable import EMPTY, doubled, probe
+from slearn.core.hashtrie import child_or_add, path_tokens
 
 ContextIndex = namedtuple(
-    "ContextIndex", "trie head best newest total outcome weight last_seen next size entry_keys entry_vals")
+    "ContextIndex", "trie head best newest total outcome owner weight last_seen next size entry_slots")
 """Per context node: ``head`` (first entry or -1; entries are linked through ``next``),
 ``best`` (the entry of largest weight, then newest, then smallest outcome), ``newest``
 (the entry seen last) and ``total`` (summed weight), all kept up to date in O(1) because
-weights and recency only grow. Per entry: ``outcome``, ``weight``, ``last_seen``.
-``entry_keys``/``entry_vals`` hash ``node << 32 | outcome`` to the entry; ``size`` int64[1]
-counts entries."""
+weights and recency only grow. Per entry: ``outcome``, its context node ``owner``,
+``weight``, ``last_seen``. ``entry_slots`` hash ``(owner, outcome)`` to the entry (slearn's
+one hash table); ``size`` int64[1] counts entries."""
 
 
 def new_index(capacity: int = 1024) -> ContextIndex:
     """An empty index with room for ``capacity`` nodes and entries."""
     trie = hashtrie.new_trie(capacity)
     nodes = len(trie.parent)
-    slots = hashtrie.table_size(capacity)
     return ContextIndex(trie, np.full(nodes, -1, np.int32), np.full(nodes, -1, np.int32),
                         np.full(nodes, -1, np.int32), np.zeros(nodes, np.int64),
-                        np.zeros(capacity, np.int32), np.zeros(capacity, np.int64),
-                        np.zeros(capacity, np.int64), np.full(capacity, -1, np.int32),
-                        np.zeros(1, np.int64), np.full(slots, -1, np.int64), np.zeros(slots, np.int32))
+                        np.zeros(capacity, np.int32), np.full(capacity, -1, np.int32),
+                        np.zeros(capacity, np.int64), np.zeros(capacity, np.int64),
+                        np.full(capacity, -1, np.int32), np.zeros(1, np.int64), hashtable.new_slots(capacity))
 
 
 def free_room(index: ContextIndex) -> int:
@@ -58,15 +57,15 @@ def grow(index: ContextIndex, min_free: int) -> ContextIndex:
     n = int(index.size[0])
     capacity = doubled(len(index.outcome), n, min_free)
     if capacity == len(index.outcome):
-        return ContextIndex(trie, *per_node, index.outcome, index.weight,  # type: ignore[call-arg]
-                            index.last_seen, index.next, index.size, index.entry_keys, index.entry_vals)
-    per_entry = [_extended(a, capacity, fill) for a, fill in
-                 ((index.outcome, 0), (index.weight, 0), (index.last_seen, 0), (index.next, -1))]
-    slots = hashtrie.table_size(capacity)
-    grown = ContextIndex(trie, *per_node, *per_entry, index.size,  # type: ignore[call-arg]
-                         np.full(slots, -1, np.int64), np.zeros(slots, np.int32))
-    _rehash_entries(grown, int(trie.size[0]))
-    return grown
+        return index._replace(trie=trie, head=per_node[0], best=per_node[1], newest=per_node[2],
+                              total=per_node[3])
+    outcome, owner, weight, last_seen, nxt = (
+        _extended(a, capacity, fill) for a, fill in
+        ((index.outcome, 0), (index.owner, -1), (index.weight, 0), (index.last_seen, 0), (index.next, -1)))
+    slots = hashtable.new_slots(capacity)
+    hashtable.rebuild(slots, owner, outcome, 0, n)
+    return ContextIndex(trie, *per_node, outcome, owner, weight,  # type: ignore[call-arg]
+                        last_seen, nxt, index.size, slots)
 
 
 def _extended(array: np.ndarray, size: int, fill) -> np.ndarray:
@@ -78,41 +77,27 @@ def _extended(array: np.ndarray, size: int, fill) -> np.ndarray:
 
 
 def nbytes(index: ContextIndex) -> int:
-    """Bytes held by the index arrays."""
-    return sum(a.nbytes for a in (*index.trie[:4], *index[1:10], *index[11:]))
-
-
-@kernel
-def _rehash_entries(index, n_nodes):
-    for node in range(n_nodes):
-        e = index.head[node]
-        while e != -1:
-            key = pair_key(node, index.outcome[e])
-            s = probe(index.entry_keys, key)
-            index.entry_keys[s] = key
-            index.entry_vals[s] = e
-            e = index.next[e]
+    """Bytes held by the index arrays (the trie's included)."""
+    return sum(a.nbytes for a in (*index.trie, *index[1:]))
 
 
 @helper
 def find_entry(index, node, outcome):
     """The entry of ``outcome`` after the context at ``node``, or -1."""
-    key = pair_key(node, outcome)
-    s = probe(index.entry_keys, key)
-    return index.entry_vals[s] if index.entry_keys[s] == key else -1
+    return index.entry_slots[probe(index.entry_slots, index.owner, index.outcome, node, outcome)]
 
 
 @helper
 def _entry(index, node, outcome):
     """The entry of ``outcome`` after ``node``, created (at the head of its list) if missing."""
-    key = pair_key(node, outcome)
-    s = probe(index.entry_keys, key)
-    if index.entry_keys[s] == key:
-        return index.entry_vals[s]
+    s = probe(index.entry_slots, index.owner, index.outcome, node, outcome)
+    found = index.entry_slots[s]
+    if found != EMPTY:
+        return found
     e = index.size[0]
-    index.entry_keys[s] = key
-    index.entry_vals[s] = e
+    index.entry_slots[s] = e
     index.outcome[e] = outcome
+    index.owner[e] = node
     index.next[e] = index.head[node]
     index.head[node] = e
     index.size[0] = e + 1
