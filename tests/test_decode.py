@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 from mcap_ros2.writer import Writer as Ros2Writer

@@ -11,8 +11,6 @@ from click.testing import CliRunner
 
 from slearn.io import files
 from slearn.cli import main
-from slearn.recorders.pointer import PointerConfig
-from slearn.recorders.record_pointer import record_pointer
 
 from test_datasets import PR2_LOG
 from test_files import FullDisk

@@ -13,8 +13,6 @@ from click.testing import CliRunner
 import mcap_bytes as mb
 from fixtures import POINTER_TOML, write_log
 from slearn.cli import EXIT_TRUNCATED, main
-from slearn.recorders.pointer import PointerConfig
-from slearn.recorders.record_pointer import record_pointer
 from slearn.io.library_file import load_library
 
 from test_library_header import edited, _set

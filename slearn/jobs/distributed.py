@@ -133,8 +133,9 @@ def read_log(path: str, spec: dict, source: str, window: dict | None) -> dict:
     episodes, report = [], ReadReport(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for name, episode, report in read_episodes([path], Spec.from_dict(spec, source), vocabulary,
-                                                   False, slice_from_dict(window)):
+        for name, episode, report in read_episodes([path], Spec.from_dict(spec, source),  # noqa: B007
+                                                   vocabulary, False, slice_from_dict(window)):
+            # every item carries the log's report so far: the last one is kept
             episodes.append((name, episode.symbols, episode.step_offsets, episode.n_actions))
     return {"episodes": episodes, "vocabulary": [(c, v) for _, c, v in vocabulary.items()],
             "report": dataclasses.asdict(report), "events": sum(len(e[1]) for e in episodes),
