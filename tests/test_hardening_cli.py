@@ -301,3 +301,4 @@ def test_a_log_time_past_int64_is_damage_not_a_traceback(tmp_path):
     assert result.exit_code == EXIT_TRUNCATED, result.output
     assert "past the year 2262" in result.stderr
     assert load_library(tmp_path / "lib.parquet").library.clock == 5
+

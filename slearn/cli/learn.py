@@ -101,7 +101,7 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     if topics is not None:
         if spec is None:
             raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
-        spec = spec.only_topics(topic_list(topics))
+        spec = spec.only_topics(topic_list(topics) or [])
     window = make_slice(start, end, split)
     paths = expand_paths(list(logs))
     progress = not quiet and sys.stderr.isatty()

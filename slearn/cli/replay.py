@@ -129,6 +129,8 @@ def _spec(spec: str | None, library: str | None, topics: str | None):
             raise InputError(f"{library}: learned on topics {', '.join(learned)}; replay reads the "
                              f"same topics (drop --topics, or learn a library on the ones you want)")
         return spec
+    if spec is None:
+        raise click.UsageError("--topics selects entries of a spec: give --spec or a library")
     from slearn.io.spec import load_spec
 
     return load_spec(spec).only_topics(wanted)

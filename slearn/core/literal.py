@@ -190,9 +190,12 @@ class LiteralLibrary:
 
     # forgetting ----------------------------------------------------------------------
     def _forget(self) -> None:
+        self.forget(int((self.max_patterns or 0) * FORGET_TO))  # called only with a bound
+
+    def forget(self, target: int) -> None:
+        """Drop the rarest, then oldest patterns until at most ``target`` remain."""
         n = int(self._trie.size[0])
         parent, count = self._trie.parent[:n], self._count[:n]
-        target = int((self.max_patterns or 0) * FORGET_TO)  # called only with a bound
         keep_anyway = np.zeros(n, bool)
         keep_anyway[int(self._state[0])] = True
         while int(np.count_nonzero(count)) > target:

@@ -61,7 +61,8 @@ class RayReader:
         paths = [os.fspath(p) for p in paths]
         task = self.ray.remote(max_retries=MAX_RETRIES)(read_log)
         prepare_vocabulary(spec, vocabulary)
-        data, rate, shown = spec.to_dict(), Rate(self.what, len(paths), self.echo), set()
+        data, rate = spec.to_dict(), Rate(self.what, len(paths), self.echo)
+        shown: set[str] = set()
         pending: deque = deque()
         todo = iter(paths)
         for _ in range(self.in_flight):
@@ -75,11 +76,11 @@ class RayReader:
             _warn_once(log["warnings"], shown)
 
 
-def _submit(task, todo: Iterator[str], pending: deque, spec: dict, source: str,
+def _submit(task, todo: Iterator[str | os.PathLike], pending: deque, spec: dict, source: str,
             window: TimeSlice | dict[str, TimeSlice] | None) -> None:
     path = next(todo, None)
     if path is not None:
-        log_window = window.get(path) if isinstance(window, dict) else window
+        log_window = window.get(os.fspath(path)) if isinstance(window, dict) else window
         pending.append((path, task.remote(path, spec, source,
                                           log_window.to_dict() if log_window else None)))
 

@@ -23,7 +23,11 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+<<<<<<< HEAD
 from typing import Callable, Iterator
+=======
+from typing import Callable, Sequence, cast
+>>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
 
 from slearn import __version__
 from slearn.core import literal
@@ -139,12 +143,18 @@ def default_spec(path: str) -> Spec:
                     f"(`slearn info {path} --suggest-spec spec.toml` writes a skeleton)")
 
 
-def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
+def _new_job(paths: Sequence[str | os.PathLike], spec: Spec | None, max_length: int | None,
              max_patterns: int | None, scoring: str | None, progress: bool,
+<<<<<<< HEAD
              window: TimeSlice | None = None, one_read: bool = False) -> _Job:
     """A new job; ``one_read`` fits quantile bins in the read that learning then uses
     (:mod:`slearn.io.onepass`; only when this process reads the logs)."""
     spec = spec if spec is not None else default_spec(paths[0])
+=======
+             window: TimeSlice | None = None) -> _Job:
+    spec = spec if spec is not None else default_spec(os.fspath(paths[0]))
+    spec = fit_spec(spec, paths, progress, window)
+>>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
     vocabulary = Vocabulary()
     pieces = None
     if one_read and can_fit_in_one_pass(spec):
@@ -152,6 +162,7 @@ def _new_job(paths: list[str], spec: Spec | None, max_length: int | None,
     else:
         spec = fit_spec(spec, paths, progress, window)
     scoring = scoring or DEFAULT_SCORING
+    library: PatternLibrary | LiteralLibrary
     if scoring == "literal":
         library = LiteralLibrary(max_length or literal.DEFAULT_MAX_LENGTH, max_patterns)
     else:
@@ -176,7 +187,7 @@ def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
                          f"--resume keeps it (leave out --scoring)")
     if max_patterns is not None:
         library.max_patterns = max_patterns
-    return _Job(library, loaded.vocabulary, loaded.spec or spec, dict(loaded.params),
+    return _Job(library, loaded.vocabulary, cast(Spec, loaded.spec or spec), dict(loaded.params),  # one is set
                 loaded.provenance)
 
 
@@ -185,7 +196,7 @@ def _check_scoring(scoring: str | None) -> None:
         raise InputError(f"scoring must be one of {', '.join(SCORING_RULES)}, not {scoring!r}")
 
 
-def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
+def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
                 spec: Spec | None = None, resume: str | os.PathLike | None = None,
                 max_length: int | None = None, max_patterns: int | None = None,
                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
@@ -251,7 +262,7 @@ def learn_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     return result
 
 
-def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: bool,
+def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
                     window: TimeSlice | None, reader: Callable = read_episodes) -> None:
     if job.pieces is not None:  # read already (quantile bins fitted in the same read)
@@ -281,6 +292,7 @@ def _learn_episodes(job: _Job, paths: list[str], result: LearnResult, progress: 
             on_episode(result, path)
 
 
+<<<<<<< HEAD
 def _whole(pieces):
     """Pieces joined back into whole episodes."""
     from slearn.io.serialize import _joined
@@ -294,6 +306,9 @@ def _whole(pieces):
 
 
 def build_provenance(paths: list[str], previous: dict | None = None,
+=======
+def build_provenance(paths: Sequence[str | os.PathLike], previous: dict | None = None,
+>>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
                      window: TimeSlice | None = None, records: list[dict] | None = None) -> dict:
     """Provenance of a library learned from ``paths`` (after ``previous``'s inputs, if any).
 

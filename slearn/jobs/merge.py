@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import os
 
+from typing import cast
+
 import numpy as np
 
 from slearn import __version__
@@ -53,10 +55,11 @@ def merge_libraries(a: LoadedLibrary, b: LoadedLibrary) -> LoadedLibrary:
         raise SpecError(f"cannot merge {a.path or 'library A'} and {b.path or 'library B'}: {reason}")
     vocabulary, symbol_map = _merged_vocabulary(a.vocabulary, b.vocabulary)
     tokens, token_map = _merged_tokens(a.library.tokens, b.library.tokens, symbol_map)
-    if isinstance(a.library, LiteralLibrary):
-        library = _merged_literal(a.library, b.library, tokens, token_map)
+    library: PatternLibrary | LiteralLibrary
+    if isinstance(a.library, LiteralLibrary):  # both are: _incompatibility checked the scoring
+        library = _merged_literal(a.library, cast(LiteralLibrary, b.library), tokens, token_map)
     else:
-        library = _merged_occurrences(a.library, b.library, tokens, token_map, vocabulary)
+        library = _merged_occurrences(a.library, cast(PatternLibrary, b.library), tokens, token_map, vocabulary)
     library.forgotten = a.library.forgotten + b.library.forgotten
     if library.max_patterns is not None and len(library) > library.max_patterns:
         library.forget(int(library.max_patterns * FORGET_TO))
@@ -93,7 +96,7 @@ def _incompatibility(a: LoadedLibrary, b: LoadedLibrary) -> str | None:
             return f"{key} {a.params.get(key)!r} vs {b.params.get(key)!r}"
     if (a.spec is None) != (b.spec is None):
         return "one library has a spec and the other has none"
-    if a.spec is not None:
+    if a.spec is not None and b.spec is not None:
         reason = _spec_difference(a.spec.to_dict(), b.spec.to_dict())
         if reason:
             return reason

@@ -32,7 +32,7 @@ import os
 import time
 import warnings
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Sequence
 
 from slearn import __version__
 from slearn.jobs.cluster import (MAX_RETRIES, Rate, check_visible, gather, library_bytes,
@@ -56,7 +56,7 @@ _PARTIAL = {"slearn_version": __version__, "inputs": [], "time_unix": 0,
             "time": "1970-01-01T00:00:00Z", "time_source": "a partial library of a Ray job"}
 
 
-def learn_on_ray(paths: list[str | os.PathLike], output: str | os.PathLike, *,
+def learn_on_ray(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
                  workers: int | None = None, address: str | None = None,
                  spec: Spec | None = None, resume: str | os.PathLike | None = None,
                  max_length: int | None = None, max_patterns: int | None = None,
@@ -116,7 +116,7 @@ def _refuse_order_dependent(scoring: str | None, max_patterns: int | None) -> No
                          "learn in one process")
 
 
-def _learn_tasks(ray, paths: list[str], spec: Spec, max_length: int, window: TimeSlice | None,
+def _learn_tasks(ray, paths: Sequence[str | os.PathLike], spec: Spec, max_length: int, window: TimeSlice | None,
                  first: bytes | None, rate: Rate) -> tuple[list[dict], bytes | None]:
     """Per log its stats, and the bytes of the merged library (``None``: nothing learned)."""
     learn = ray.remote(num_returns=2, max_retries=MAX_RETRIES)(learn_log)
@@ -125,7 +125,7 @@ def _learn_tasks(ray, paths: list[str], spec: Spec, max_length: int, window: Tim
     tasks = [learn.remote(path, spec_data, spec.source, max_length, window_data) for path in paths]
     leaves = ([ray.put(first)] if first is not None else []) + [partial for _, partial in tasks]
     root = merge_tree(merge, leaves)
-    stats = gather(ray, [s for s, _ in tasks], paths, lambda i, s: rate.add(s["events"]))
+    stats = gather(ray, [s for s, _ in tasks], [os.fspath(p) for p in paths], lambda i, s: rate.add(s["events"]))
     return stats, gather(ray, [root], ["merging the partial libraries"])[0]
 
 
@@ -146,7 +146,7 @@ def learn_log(path: str, spec: dict, source: str, max_length: int,
     spec_object = Spec.from_dict(spec, source)
     vocabulary = Vocabulary()
     library = PatternLibrary(max_length, None, vocabulary=vocabulary)
-    stats = {"path": path, "episodes": 0, "steps": 0, "events": 0, "truncated": None}
+    stats: dict[str, Any] = {"path": path, "episodes": 0, "steps": 0, "events": 0, "truncated": None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         for _, episode, report in read_episodes([path], spec_object, vocabulary, False,
