@@ -37,7 +37,7 @@ from slearn.jobs.merge import merge_libraries
 from slearn.jobs.merge_tree import learn_on_ray
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.replay.evaluate import replay_logs
+from slearn.replay.replay_logs import replay_logs
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import pointer_spec
 from slearn.io.library_file import load_library

@@ -1,6 +1,6 @@
 """Replay throughput: predictions per second, for the evaluation core and the whole command.
 
-- ``core``: :func:`slearn.replay.evaluate.evaluate` on in-memory pointer episodes (the
+- ``core``: :func:`slearn.replay.evaluation.evaluate` on in-memory pointer episodes (the
   library's predictions, both baselines, per-channel, windowed and confusion scores), in
   frozen and online mode; compiled kernels warmed up first.
 - ``command``: ``slearn replay LIB LOG --json`` in-process on a recorded pointer MCAP log
@@ -28,7 +28,7 @@ from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
-from slearn.replay.evaluate import evaluate
+from slearn.replay.evaluation import evaluate
 
 
 def _train(train_trials: int) -> tuple[PatternLibrary, Baselines]:

@@ -21,7 +21,7 @@ from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.replay.baselines import Baselines
-from slearn.replay.evaluate import Evaluation, evaluate
+from slearn.replay.evaluation import Evaluation, evaluate
 from slearn.replay.intervals import wilson
 
 HEADER = ("| {what} | events | library (frozen) | 95 % interval | frequency | persistence | {last} |\n"
@@ -80,7 +80,7 @@ def arm_figures(max_joints: int, train_seeds: tuple[int, ...], heldout_seed: int
 def log_figures(train: str | os.PathLike, heldout: str | os.PathLike, spec: str | os.PathLike) -> str:
     """A Markdown table and notes: ``slearn learn`` on ``train``, frozen replay of ``heldout``."""
     from slearn.jobs.learn import learn_files
-    from slearn.replay.evaluate import replay_logs
+    from slearn.replay.replay_logs import replay_logs
     from slearn.io.spec import load_spec
 
     with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings():

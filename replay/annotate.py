@@ -13,7 +13,7 @@ predicted (so in Foxglove the prediction lines up with what happened):
 * ``/slearn/correct`` (``slearn.replay.Correct``): ``correct`` and ``value`` (1 or 0), to plot;
 * ``/slearn/surprise`` (``slearn.replay.Surprise``): ``bits``, ``-log2`` of the
   probability the library gave what happened (see
-  :meth:`slearn.replay.evaluate.EpisodeOutcome.surprise_bits`), and that ``probability``.
+  :meth:`slearn.replay.evaluation.EpisodeOutcome.surprise_bits`), and that ``probability``.
 
 A metadata record ``slearn.replay`` names the library, the mode, the accuracy and the
 source's header library. A log with several episodes gets one annotated copy holding all
@@ -37,7 +37,7 @@ from slearn.io.episodes import split_episode_name
 from slearn.errors import InputError, SlearnError
 from slearn.io.files import write_atomic
 from slearn.recorders.mcap_copy import CopyWriter
-from slearn.replay.evaluate import Evaluation, EpisodeOutcome
+from slearn.replay.evaluation import Evaluation, EpisodeOutcome
 from slearn.replay.metrics import ChannelDecoder
 from slearn.io.serialize import iter_step_times
 from slearn.io.slicing import slice_from_dict

@@ -47,7 +47,7 @@ class HonestScores:
     channel_persistence: dict[str, int] = field(default_factory=dict)
 
     def add(self, outcome, decoder) -> None:
-        """Count one episode's outcome (:class:`~slearn.replay.evaluate.EpisodeOutcome`)
+        """Count one episode's outcome (:class:`~slearn.replay.evaluation.EpisodeOutcome`)
         with the replay's :class:`~slearn.replay.metrics.ChannelDecoder`."""
         ev, actual = outcome.evaluated, outcome.actual
         library = (outcome.predicted == actual) & ev

@@ -17,7 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from slearn.io.files import write_atomic
-from slearn.replay.evaluate import Evaluation
+from slearn.replay.evaluation import Evaluation
 
 OVERALL = "all"
 

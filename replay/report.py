@@ -8,7 +8,7 @@ import json
 import math
 import os
 from slearn.io.files import write_atomic
-from slearn.replay.evaluate import Evaluation
+from slearn.replay.evaluation import Evaluation
 from slearn.replay.metrics import BASELINES
 
 

@@ -15,8 +15,9 @@ from slearn.core.library import PatternLibrary
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
-from slearn.replay.evaluate import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
-                                    iter_evaluation, replay_logs)
+from slearn.replay.evaluation import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
+                                      iter_evaluation)
+from slearn.replay.replay_logs import replay_logs
 from slearn.replay.windows import data_window
 from slearn.io.spec import pointer_spec
 from slearn.core.stream import Episode

@@ -83,7 +83,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     4 when the accuracy is below --fail-under. With --workers or --ray, Ray tasks read
     the logs and this process scores them in order: the same report as without.
     """
-    from slearn.replay.evaluate import replay_logs
+    from slearn.replay.replay_logs import replay_logs
 
     library, logs = _split(paths, spec)
     inputs = [*paths, *baseline_train, *([spec] if spec else [])]
