@@ -144,7 +144,10 @@ class SequenceModel:
         except TypeError:
             raise ParameterError(f"{channel} value {value!r} is not hashable: use tuples, "
                                  f"strings or numbers") from None
-        return self.vocabulary.symbol(channel, value) if learn else self.vocabulary.get_symbol(channel, value)
+        if learn:
+            return self.vocabulary.symbol(channel, value)
+        known = self.vocabulary.get_symbol(channel, value)
+        return -1 if known is None else known
 
     def _step_symbols(self, step: Step, learn: bool) -> tuple[tuple[int, ...], tuple[int, ...]]:
         try:
@@ -167,15 +170,15 @@ class SequenceModel:
     def _query(self, history: list, actions: Mapping[str, Hashable], k: int) -> dict:
         if self.library is None:
             return {}
-        steps, unknown = self._lookup_steps(history + [(actions, {})])
+        steps, unknown = self._lookup_steps(self.library, history + [(actions, {})])
         if self._predictor is None or self._predictor.top_k != k:
             self._predictor = Predictor(self.library, top_k=k)
         prediction = self._predictor.predict_unknown(steps, unknown)
         return self._named(prediction, k)
 
-    def _lookup_steps(self, steps: list) -> tuple[list, np.ndarray]:
+    def _lookup_steps(self, library: PatternLibrary | LiteralLibrary, steps: list) -> tuple[list, np.ndarray]:
         """Steps as symbols; a value never seen gets a symbol past the vocabulary."""
-        view_of = {name: i for i, name in enumerate(self.library.view_names)}
+        view_of = {name: i for i, name in enumerate(library.view_names)}
         unknown: list[int] = []
         rows = []
         for step in steps:
@@ -185,7 +188,7 @@ class SequenceModel:
                 symbols = []
                 for channel, value in mapping.items():
                     s = self._symbol(str(channel), value, learn=False)
-                    if s is None:
+                    if s == -1:
                         s = len(self.vocabulary) + len(unknown)
                         unknown.append(view_of.get(str(channel), -1) if role == OBSERVATION else -1)
                     symbols.append(s)

@@ -24,6 +24,7 @@ import hashlib
 import os
 import shutil
 import time
+from typing import Any
 from functools import lru_cache
 from pathlib import Path
 
@@ -79,11 +80,13 @@ class _slearn_cache:
     """Point numba's cache at slearn's folder for the duration of a decoration."""
 
     def __enter__(self) -> None:
-        self.saved = numba.config.CACHE_DIR
-        numba.config.CACHE_DIR = cache_folder()
+        config: Any = numba.config  # numba sets its options at run time
+        self.saved = config.CACHE_DIR
+        config.CACHE_DIR = cache_folder()
 
     def __exit__(self, *exc) -> None:
-        numba.config.CACHE_DIR = self.saved
+        config: Any = numba.config
+        config.CACHE_DIR = self.saved
 
 
 @lru_cache(maxsize=1)

@@ -101,7 +101,8 @@ class Predictor:
             raise ParameterError(f"top_k must be an integer in 1..1000, not {top_k!r}")
         self.library = library
         self.top_k = top_k
-        self._arrays, self._known = None, ()  # what the token dictionaries were built for
+        self._arrays = None  # what the token dictionaries were built for
+        self._known: tuple[int, ...] = ()
         self._state: tuple = (None, None)  # the library's tree and mixer, and as plain tuples
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
