@@ -23,11 +23,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-<<<<<<< HEAD
-from typing import Callable, Iterator
-=======
-from typing import Callable, Sequence, cast
->>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
+from typing import Callable, Iterator, Sequence, cast
 
 from slearn import __version__
 from slearn.core import literal
@@ -145,16 +141,10 @@ def default_spec(path: str) -> Spec:
 
 def _new_job(paths: Sequence[str | os.PathLike], spec: Spec | None, max_length: int | None,
              max_patterns: int | None, scoring: str | None, progress: bool,
-<<<<<<< HEAD
              window: TimeSlice | None = None, one_read: bool = False) -> _Job:
     """A new job; ``one_read`` fits quantile bins in the read that learning then uses
     (:mod:`slearn.io.onepass`; only when this process reads the logs)."""
-    spec = spec if spec is not None else default_spec(paths[0])
-=======
-             window: TimeSlice | None = None) -> _Job:
     spec = spec if spec is not None else default_spec(os.fspath(paths[0]))
-    spec = fit_spec(spec, paths, progress, window)
->>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
     vocabulary = Vocabulary()
     pieces = None
     if one_read and can_fit_in_one_pass(spec):
@@ -292,7 +282,6 @@ def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: Learn
             on_episode(result, path)
 
 
-<<<<<<< HEAD
 def _whole(pieces):
     """Pieces joined back into whole episodes."""
     from slearn.io.serialize import _joined
@@ -305,10 +294,7 @@ def _whole(pieces):
             parts = []
 
 
-def build_provenance(paths: list[str], previous: dict | None = None,
-=======
 def build_provenance(paths: Sequence[str | os.PathLike], previous: dict | None = None,
->>>>>>> 7940f80 (Types: paths as Sequence[str | PathLike] through the learn jobs; merge narrows by scoring; LiteralLibrary.forget(target) like PatternLibrary's (merge called it); replay --topics without a spec is a usage error)
                      window: TimeSlice | None = None, records: list[dict] | None = None) -> dict:
     """Provenance of a library learned from ``paths`` (after ``previous``'s inputs, if any).
 
