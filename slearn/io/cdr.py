@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import struct
 from functools import lru_cache
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 
@@ -273,7 +273,7 @@ def _primitives(typename: str, count: int | None, read: bool):
             raise ValueError("array runs past the end of the message")
         if not read:
             return _SKIPPED, end
-        value = np.frombuffer(raw, dtype.newbyteorder(endian), n, pos)
+        value = np.frombuffer(raw, dtype.newbyteorder(cast(Any, endian)), n, pos)  # '<' or '>'
         if value.dtype.byteorder not in ("=", "|") and not value.dtype.isnative:
             value = value.byteswap().view(value.dtype.newbyteorder())
         return value, end

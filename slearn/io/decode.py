@@ -24,12 +24,12 @@ import json
 import logging
 import re
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, cast
 
 import numpy as np
 
 from slearn.errors import DecodeError, FieldPathError
-from slearn.io.mcap_read import ChannelInfo
+from slearn.io.mcap_read import ChannelInfo, SchemaInfo
 
 Decoder = Callable[[bytes], Any]
 
@@ -42,15 +42,16 @@ MISSING = object()
 def _factory_for(message_encoding: str):
     """The mcap decoder factory for an encoding, or ``None``."""
     if message_encoding == "cdr":
-        from mcap_ros2.decoder import DecoderFactory
-    elif message_encoding == "ros1":
-        from mcap_ros1.decoder import DecoderFactory
+        from mcap_ros2.decoder import DecoderFactory as Ros2Factory
+        return Ros2Factory()
+    if message_encoding == "ros1":
+        from mcap_ros1.decoder import DecoderFactory as Ros1Factory
         _silence_rosout()
-    elif message_encoding == "protobuf":
-        from mcap_protobuf.decoder import DecoderFactory
-    else:
-        return None
-    return DecoderFactory()
+        return Ros1Factory()
+    if message_encoding == "protobuf":
+        from mcap_protobuf.decoder import DecoderFactory as ProtobufFactory
+        return ProtobufFactory()
+    return None
 
 
 def _silence_rosout() -> None:
@@ -78,8 +79,9 @@ def _rosbags_cdr_decoder(channel: ChannelInfo) -> Decoder:
     """A ROS 2 CDR decoder from ``rosbags`` (1.5-2x faster than mcap-ros2-support)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    parts = _MSG_SEPARATOR.split(channel.schema.data.decode("utf-8"))
-    name = _ros2_type_name(channel.schema.name)
+    schema = cast(SchemaInfo, channel.schema)  # a CDR channel always has its schema
+    parts = _MSG_SEPARATOR.split(schema.data.decode("utf-8"))
+    name = _ros2_type_name(schema.name)
     types = dict(get_types_from_msg(parts[0], name))
     for part in parts[1:]:
         head, _, body = part.strip("\n").partition("\n")

@@ -20,7 +20,7 @@ import os
 from collections import Counter
 from dataclasses import dataclass
 from operator import itemgetter
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator, cast
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from slearn.io.mcap_read import MessageBatch, ReadReport, iter_batches_of
 from slearn.io.spec import Bins, Spec
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, Vocabulary
+
+if TYPE_CHECKING:
+    from slearn.io.serialize import _TickSampler
 
 PIECE_EVENTS = 1 << 18  # events of complete steps gathered before a piece leaves
 BATCH_MESSAGES = 1 << 16  # messages decoded at once
@@ -51,8 +54,8 @@ class Piece:
 
 # --- decoding a batch ---------------------------------------------------------------------
 
-_SCAN = json.decoder.JSONDecoder().scan_once
-_SPACE = json.decoder.WHITESPACE.match
+_SCAN = json.decoder.JSONDecoder().scan_once  # type: ignore[attr-defined]  # the C scanner json uses
+_SPACE = json.decoder.WHITESPACE.match  # type: ignore[attr-defined]
 
 
 def _json(data: bytes) -> Any:
@@ -134,7 +137,7 @@ class _ChannelReader:
             self.decoder = cache.require(channel)
         except DecodeError as err:
             raise SpecError(f"{path}: the spec selects topic {channel.topic!r}, but {err}") from err
-        self.plan = None
+        self.plan: Callable[[bytes], list] | None = None
         if "_rosbags_cdr_decoder" in getattr(self.decoder, "__qualname__", ""):
             self.plan = cdr.field_plan(channel, [e.spec.field for e in entries])
         if self.decoder is json.loads:
@@ -155,7 +158,7 @@ class _ChannelReader:
 
     def _plan_row(self, data: bytes, offset: int, report: ReadReport) -> list:
         try:
-            return self.plan(data)
+            return cast(Callable[[bytes], list], self.plan)(data)  # rows are read only with a plan
         except cdr.CdrError:  # the full decoder gives its own verdict
             from slearn.io.serialize import _field_value
 
@@ -332,7 +335,7 @@ def _bin_keys(bins: Bins, vals: list, symbols: _Symbols, index: int) -> np.ndarr
     finite = np.isfinite(x)
     if symbols.bounded[index]:
         outside = 0
-        if bins.quantiles is None and not bins.wrap and not bins.clip:
+        if bins.quantiles is None and not bins.wrap and not bins.clip and bins.range is not None:
             lo, hi = bins.range
             outside = int(np.count_nonzero(finite & ((x < lo) | (x > hi))))
         symbols.count_range(index, len(vals), outside)
@@ -386,6 +389,7 @@ class _EpisodeStream:
 
     def __init__(self, name: str, spec: Spec, symbols: _Symbols, emit: Callable[[Piece], None]) -> None:
         self.name, self.spec, self.symbols, self.emit = name, spec, symbols, emit
+        self.key = 0  # the episode marker it follows (0: none)
         self.is_action = np.array([c.role == ACTION for c in spec.channels], bool)
         self.change = [] if spec.mode == "tick" else [
             i for i in range(len(spec.channels)) if spec.channel_mode(i) == "change"]
@@ -441,7 +445,7 @@ class _EpisodeStream:
             self._steps(events)
 
     def _sample(self, events: _Events) -> None:
-        add = self.sampler.add
+        add = cast("_TickSampler", self.sampler).add  # tick mode
         for t, index, symbol in zip(events.time.tolist(), events.entry.tolist(), events.symbol.tolist()):
             add(t, index, symbol)
         self._take_builder(final=False)
@@ -449,7 +453,7 @@ class _EpisodeStream:
     def _take_builder(self, final: bool) -> None:
         builder = self.builder
         if final or len(builder.symbols) >= PIECE_EVENTS:
-            episode = self.sampler.finish() if final else builder.take()
+            episode = cast("_TickSampler", self.sampler).finish() if final else builder.take()
             self.done.append((episode.symbols, np.diff(episode.step_offsets), episode.n_actions))
             self.done_events += episode.n_events
             self._flush(final)
@@ -529,12 +533,12 @@ class _LogReader:
         from slearn.io.serialize import _entries_by_topic
 
         self.path, self.spec, self.emit = path, spec, emit
+        self.symbols = _Symbols(spec, vocabulary, path, ranges)
         self.new_stream = new_stream or (lambda name: _EpisodeStream(name, spec, self.symbols, emit))
         self.by_topic = _entries_by_topic(spec)
         self.cache = DecoderCache()
         self.readers: dict[int, _ChannelReader] = {}
         self.seen: dict[str, int] = {}
-        self.symbols = _Symbols(spec, vocabulary, path, ranges)
         self.markers = 0
         self.stream: _EpisodeStream | None = None
 
@@ -578,11 +582,11 @@ class _LogReader:
                 parts_values.append([values[i] for i in got])
         if not sum(len(p) for p in parts_pos):
             return
-        self._episode(key)
+        stream = self._episode(key)
         pos, entries = np.concatenate(parts_pos), np.concatenate(parts_entry)
         values = [v for part in parts_values for v in part]
         order = np.lexsort((entries, pos))  # message order, then spec order
-        self.stream.add(batch.log_times[pos[order]], entries[order], [values[i] for i in order.tolist()])
+        stream.add(batch.log_times[pos[order]], entries[order], [values[i] for i in order.tolist()])
 
     def _reader(self, channel) -> _ChannelReader:
         reader = self.readers.get(channel.id)
@@ -591,15 +595,17 @@ class _LogReader:
                 channel, self.by_topic[channel.topic], self.cache, self.path)
         return reader
 
-    def _episode(self, key: int) -> None:
+    def _episode(self, key: int) -> _EpisodeStream:
+        """The stream of the episode after marker ``key``, the previous one finished."""
         from slearn.io.episodes import episode_name
 
         if self.stream is not None and self.stream.key == key:
-            return
+            return self.stream
         if self.stream is not None:
             self.stream.finish()
-        self.stream = self.new_stream(episode_name(self.path, key - 1 if key else None))
-        self.stream.key = key
+        stream = self.stream = self.new_stream(episode_name(self.path, key - 1 if key else None))
+        stream.key = key
+        return stream
 
     def finish(self) -> None:
         """The last episode's last piece (an empty episode when nothing was read)."""

@@ -447,9 +447,10 @@ def _scan(f: BinaryIO, report: ReadReport) -> _Layout:
         op, length = _RECORD_HEAD.unpack(head)
         if op == _OP_INVALID:
             builder.close()  # a block never spans the zeros
-            pos = _skip_zeros(f, pos, size, report)
-            if pos is None:
+            after = _skip_zeros(f, pos, size, report)
+            if after is None:
                 break
+            pos = after
             continue
         end = pos + 9 + length
         if end > size:

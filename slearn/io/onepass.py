@@ -17,7 +17,7 @@ import os
 import tempfile
 import warnings
 from dataclasses import dataclass, field, replace
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, cast
 
 import numpy as np
 
@@ -33,7 +33,7 @@ _COLUMNS = (("time", np.uint64), ("entry", np.int32), ("code", np.int64), ("valu
 def can_fit_in_one_pass(spec: Spec) -> bool:
     """Whether :func:`fit_and_read` handles this spec (quantile entries without ``range`` or
     ``wrap``, whose values are then simply numbers)."""
-    todo = [c.symbolizer for c in spec.channels if not c.symbolizer.fitted]
+    todo = [cast(Bins, c.symbolizer) for c in spec.channels if not c.symbolizer.fitted]  # only Bins fit
     return bool(todo) and all(b.range is None and not b.wrap for b in todo)
 
 
@@ -114,7 +114,8 @@ class _SpillStream:
         value = np.full(len(values), np.nan)
         other = np.flatnonzero(~quantile)
         if len(other):
-            code[other] = fit.symbols.symbols(entries[other], [values[i] for i in other.tolist()])
+            symbols = cast(ingest._Symbols, fit.symbols)  # set while a log is read
+            code[other] = symbols.symbols(entries[other], [values[i] for i in other.tolist()])
         for index in fit.todo:
             where = np.flatnonzero(entries == index)
             if len(where):
@@ -156,7 +157,7 @@ class _FirstRead:
         self.ranges = RangeCounts()
         self.spill = _Spill(folder)
         self.logs: list[_Log] = []
-        self.symbols = None
+        self.symbols: ingest._Symbols | None = None  # the log being read's
 
     def read(self, path: str, progress: bool, window) -> None:
         log = _Log(path, ReadReport(path))
@@ -178,9 +179,9 @@ class _FirstRead:
                 why = f" (the log is damaged: {damaged[0].describe()})" if damaged else ""
                 raise SpecError(f"{self.spec.source}: entry {i + 1} ({channels[i].name!r}): no numeric "
                                 f"value in the training logs to fit quantile bins on{why}")
-            bins: Bins = channels[i].symbolizer
+            bins = cast(Bins, channels[i].symbolizer)  # an entry to fit has quantile bins
             channels[i] = replace(channels[i], symbolizer=Bins(
-                quantiles=bins.quantiles, edges=_fitted_edges(list(values), bins.quantiles)))
+                quantiles=bins.quantiles, edges=_fitted_edges(list(values), bins.quantiles or 0)))
         return self.spec.with_channels(channels)
 
 
@@ -194,7 +195,7 @@ def _symbol_tables(first: _FirstRead, spec: Spec, vocabulary: Vocabulary):
     quantile = {}
     for i in first.todo:
         entry = spec.channels[i]
-        cuts = np.asarray(entry.symbolizer.cuts(), np.float64)
+        cuts = np.asarray(cast(Bins, entry.symbolizer).cuts(), np.float64)
         quantile[i] = cuts, np.array([vocabulary.get_symbol(entry.name, k)
                                       for k in range(len(cuts) + 1)], np.int64)
     return scratch, quantile
@@ -222,7 +223,8 @@ def _replay(first: _FirstRead, spec: Spec, vocabulary: Vocabulary
         pieces: list[ingest.Piece] = []
         out: list[ingest.Piece] = []
         for name, start, stop in log.episodes:
-            stream = ingest._EpisodeStream(name, spec, None, pieces.append)
+            # no symbolizer: the spill's symbols are mapped by add_symbols
+            stream = ingest._EpisodeStream(name, spec, cast(ingest._Symbols, None), pieces.append)
             for at in range(start, stop, ingest.BATCH_MESSAGES):
                 batch = first.spill.read(at, min(stop, at + ingest.BATCH_MESSAGES))
                 stream.add_symbols(batch["time"], batch["entry"].astype(np.int64),

@@ -44,7 +44,7 @@ import warnings
 from array import array
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, cast
 
 import numpy as np
 
@@ -59,6 +59,9 @@ from slearn.io.spec import (POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec
                          value_labels)
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, Vocabulary
+
+if TYPE_CHECKING:
+    from slearn.io.ingest import Piece
 
 MAX_TICKS = 10_000_000
 _QUANTILE_SAMPLE = 1 << 20  # values kept per entry when fitting quantiles
@@ -214,7 +217,7 @@ class RangeCounts:
         out = []
         for index, n in sorted(self.outside.items()):
             entry, total = spec.channels[index], self.values[index]
-            lo, hi = entry.symbolizer.range
+            lo, hi = cast(tuple, cast(Bins, entry.symbolizer).range)  # counted only for range bins
             out.append(f"channel {entry.name!r}: {n:,} of {total:,} values ({100 * n / total:.1f} %) "
                        f"in {len(self.logs[index])} log(s) fell outside range [{lo:g}, {hi:g}] and "
                        f"were counted in the end bins, which can make predictions look better "
@@ -233,7 +236,7 @@ def _symbolize(values: Iterable[tuple[int, int, Any]], spec: Spec, vocabulary: V
     known, per_channel = len(vocabulary), Counter(channel for _, channel, _ in vocabulary.items())
     for position, (log_time, index, value) in enumerate(values):
         if bounded[index] and ranges is not None:
-            ranges.add(index, entries[index].symbolizer.outside(value), path)
+            ranges.add(index, cast(Bins, entries[index].symbolizer).outside(value), path)
         value = entries[index].symbolizer.symbol_value(value)
         if value is None:
             continue
@@ -299,7 +302,7 @@ class _StepBuilder:
         if self.open:
             self.offsets.append(len(self.symbols))
             self.n_actions.append(self.actions)
-            self.times.append(self.obs_time if self.obs_time is not None else self.action_time)
+            self.times.append(self.obs_time if self.obs_time is not None else cast(int, self.action_time))
         self.open, self.actions, self.observations = True, 0, 0
         self.obs_time = self.action_time = None
 
@@ -358,7 +361,8 @@ class _TickSampler:
     """
 
     def __init__(self, spec: Spec, builder: _StepBuilder, path: str) -> None:
-        self.tick, self.phase = spec.tick_ns, spec.phase_ns or spec.tick_ns
+        self.tick: int = cast(int, spec.tick_ns)  # tick mode always has its period
+        self.phase: int = spec.phase_ns or self.tick
         self.is_action = [c.role == ACTION for c in spec.channels]
         self.builder, self.path = builder, path
         self.held: dict[int, tuple[int, int]] = {}  # entry -> (symbol, log time)
@@ -369,9 +373,10 @@ class _TickSampler:
         self.fresh = self.mismatched = 0
 
     def instant(self) -> int:
+        t0 = cast(int, self.t0)  # set by the first add
         if self.k == 0:
-            return self.t0
-        return self.t0 + (self.k - 1) * self.tick + (self.phase if self.observe_next else 0)
+            return t0
+        return t0 + (self.k - 1) * self.tick + (self.phase if self.observe_next else 0)
 
     def add(self, log_time: int, index: int, symbol: int) -> None:
         if self.t0 is None:
@@ -548,7 +553,8 @@ def read_pieces(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Voca
                 yield pending.name, pending.episode, ReadReport(path), pending.first, pending.last
             pending = piece
         _warn_if_truncated(report)
-        yield pending.name, pending.episode, report, pending.first, pending.last
+        last = cast("Piece", pending)  # every log yields a piece, an empty one at least
+        yield last.name, last.episode, report, last.first, last.last
     for message in ranges.messages(spec):
         warnings.warn(DataWarning(message), stacklevel=2)
 
@@ -562,7 +568,7 @@ def iter_step_times(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary,
     vocabulary = copy.deepcopy(vocabulary)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # already reported when the log was read
-        for name, _, times, _ in _log_episodes(os.fspath(path), spec, vocabulary, ReadReport(path),
+        for name, _, times, _ in _log_episodes(os.fspath(path), spec, vocabulary, ReadReport(os.fspath(path)),
                                                False, window, None):
             yield name, times
 
@@ -655,9 +661,9 @@ def fit_spec(spec: Spec, paths: Iterable[str | os.PathLike], progress: bool = Fa
             why = f" (the log is damaged: {damaged[0].describe()})" if damaged else ""
             raise SpecError(f"{spec.source}: entry {i + 1} ({channels[i].name!r}): no numeric value "
                             f"in the training logs to fit quantile bins on{why}")
-        bins: Bins = channels[i].symbolizer
+        bins = cast(Bins, channels[i].symbolizer)  # an entry to fit has quantile bins
         channels[i] = replace(channels[i], symbolizer=Bins(
-            quantiles=bins.quantiles, edges=_fitted_edges(samples[i].values, bins.quantiles)))
+            quantiles=bins.quantiles, edges=_fitted_edges(samples[i].values, bins.quantiles or 0)))
     return spec.with_channels(channels)
 
 

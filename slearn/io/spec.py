@@ -133,6 +133,7 @@ class Bins:
     wrap: bool = False
     clip: bool = False
     unit: str | None = None
+    _cuts: tuple[float, ...] = dataclasses.field(default=(), init=False, repr=False, compare=False)  # cuts()
 
     @property
     def fitted(self) -> bool:
@@ -166,7 +167,7 @@ class Bins:
         if self.width is not None:
             q = (x - self.origin) / self.width
             return math.floor(q) if abs(q) < _MAX_BIN_INDEX else None
-        return bisect.bisect_right(self._cuts, x)  # type: ignore[attr-defined]  # set by __post_init__
+        return bisect.bisect_right(self._cuts, x)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_cuts", self.cuts() if self.width is None else ())
