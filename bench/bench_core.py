@@ -15,8 +15,8 @@ import time
 import numpy as np
 
 from slearn.core.library import PatternLibrary
-from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.core.stream import Episode
+from slearn.recorders.pointer import PointerConfig, simulate
 
 
 def pointer_stream(trials: int, seed: int = 0) -> Episode:

@@ -38,10 +38,11 @@ from mcap.writer import CompressionType, Writer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ingest_logs import write_pointer_log  # noqa: E402
-from slearn.jobs.learn import learn_files  # noqa: E402
+
+from slearn.core.vocabulary import Vocabulary  # noqa: E402
 from slearn.io.serialize import read_episodes  # noqa: E402
 from slearn.io.spec import Spec, pointer_spec  # noqa: E402
-from slearn.core.vocabulary import Vocabulary  # noqa: E402
+from slearn.jobs.learn import learn_files  # noqa: E402
 
 SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents[1:]
                if (p / "shared" / "data" / "mcap").is_dir()), Path("shared"))  # ../shared, or above
@@ -167,7 +168,7 @@ def peak_rss_mb(args: list[str], env: dict | None = None) -> tuple[float, float,
 
 
 def rss(folder: Path, messages: int) -> None:
-    print(f"peak RSS of `slearn learn LOG -o lib.parquet` (fresh process):")
+    print("peak RSS of `slearn learn LOG -o lib.parquet` (fresh process):")
     cases = [(1_000, "chunked"), (messages // 10, "chunked"), (messages, "chunked"),
              (messages // 10, "time0"), (3_000_000, "one_chunk")]
     for n, layout in cases:

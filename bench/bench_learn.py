@@ -28,12 +28,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import best_seconds
 
 from slearn.core import context_tree, mixer
 from slearn.core.library import PatternLibrary
 from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
-from timing import best_seconds
 
 _SOURCE = Path(__file__).parent / "c" / "learn.c"
 _TREE_FIELDS = ("parent", "token", "first", "best", "newest", "fresh_best", "epoch", "node_slots",

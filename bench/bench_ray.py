@@ -30,6 +30,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from slearn.core.vocabulary import Vocabulary
+from slearn.io.library_file import load_library
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import pointer_spec
 from slearn.jobs.cluster import ray_session
 from slearn.jobs.distributed import RayReader
 from slearn.jobs.learn import learn_files
@@ -38,10 +42,6 @@ from slearn.jobs.merge_tree import learn_on_ray
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.replay_logs import replay_logs
-from slearn.io.serialize import read_episodes
-from slearn.io.spec import pointer_spec
-from slearn.io.library_file import load_library
-from slearn.core.vocabulary import Vocabulary
 
 
 def _timed(function, *args, **kwargs):

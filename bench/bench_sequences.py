@@ -50,7 +50,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-
 from peers import CountModel
 from slearn_adapter import slearn_sequence_predictions
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from slearn.jobs.learn import learn_files
 from slearn.core.library import PatternLibrary
-from slearn.recorders.pointer import CONDITIONS, PointerConfig
-from slearn.recorders.record_pointer import record_pointer
-from slearn.io.library_file import load_library, save_library
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
+from slearn.io.library_file import load_library, save_library
+from slearn.jobs.learn import learn_files
+from slearn.recorders.pointer import CONDITIONS, PointerConfig
+from slearn.recorders.record_pointer import record_pointer
 
 PAPER_PATTERNS = 2155
 PAPER_BYTES = 599_000

@@ -39,13 +39,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from peers import channel_map, per_channel_correct, prequential_correct
-from slearn.recorders.arm import (MAX_JOINTS, SENSORS, ArmConfig, arm_oracle_correct,
-                                  arm_vocabulary, simulate_arm)
+from slearn_adapter import slearn_correct
+
+from slearn.recorders.arm import MAX_JOINTS, SENSORS, ArmConfig, arm_oracle_correct, arm_vocabulary, simulate_arm
 from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
-from slearn_adapter import slearn_correct
 
 SETTLE = 2000  # trials after a switch that are not steady state
 MAX_ORDER = 6

@@ -22,10 +22,11 @@ import json
 from typing import Callable
 
 from peers import CountModel, load_c_vom, step_tokens
-from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.core.tokens import TokenTable
 from slearn_adapter import slearn_correct
 from timing import best_seconds
+
+from slearn.core.tokens import TokenTable
+from slearn.recorders.pointer import PointerConfig, simulate
 
 ORDERS = range(1, 7)
 

@@ -40,19 +40,19 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the MCAP record writer
 
 import lz4.frame  # noqa: E402
+import mcap_bytes as mb  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 import zstandard  # noqa: E402
-
-import mcap_bytes as mb  # noqa: E402
 from fuzz_cases import SPEC, base_logs, json_paths, record_bounds  # noqa: E402
-from slearn.errors import SlearnError  # noqa: E402
-from slearn.jobs.info import describe_log  # noqa: E402
+
 from slearn.core.library import PatternLibrary  # noqa: E402
+from slearn.core.vocabulary import Vocabulary  # noqa: E402
+from slearn.errors import SlearnError  # noqa: E402
+from slearn.io.library_file import METADATA_KEY, load_library, save_library  # noqa: E402
+from slearn.io.library_info import describe  # noqa: E402
 from slearn.io.serialize import read_episodes  # noqa: E402
 from slearn.io.spec import Spec, parse_channel_option  # noqa: E402
-from slearn.io.library_info import describe  # noqa: E402
-from slearn.io.library_file import METADATA_KEY, load_library, save_library  # noqa: E402
-from slearn.core.vocabulary import Vocabulary  # noqa: E402
+from slearn.jobs.info import describe_log  # noqa: E402
 
 MAX_INPUT = 10 << 20
 MIB = 1 << 20

@@ -79,9 +79,9 @@ def arm_figures(max_joints: int, train_seeds: tuple[int, ...], heldout_seed: int
 
 def log_figures(train: str | os.PathLike, heldout: str | os.PathLike, spec: str | os.PathLike) -> str:
     """A Markdown table and notes: ``slearn learn`` on ``train``, frozen replay of ``heldout``."""
+    from slearn.io.spec import load_spec
     from slearn.jobs.learn import learn_files
     from slearn.replay.replay_logs import replay_logs
-    from slearn.io.spec import load_spec
 
     with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the warnings that matter are in the result

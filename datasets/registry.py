@@ -29,18 +29,18 @@ from string import Template
 from typing import Callable
 
 from slearn import __version__
-from slearn.io.bags import open_log
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError, SpecError
+from slearn.io.bags import open_log
 from slearn.io.files import claim_folder, release_folder, write_atomic
+from slearn.io.serialize import read_episodes
+from slearn.io.slicing import HELDOUT, TRAIN, TimeSlice
+from slearn.io.spec import load_spec
 from slearn.recorders.arm import MAX_JOINTS, ArmConfig, arm_spec, record_arm
 from slearn.recorders.live import spec_toml
 from slearn.recorders.mcap_copy import copy_log
 from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.io.serialize import read_episodes
-from slearn.io.slicing import HELDOUT, TRAIN, TimeSlice
-from slearn.io.spec import load_spec
-from slearn.core.vocabulary import Vocabulary
 
 SPLITS = ("train", "heldout")
 TRAIN_SEEDS = (0, 1, 2, 3)

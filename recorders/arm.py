@@ -40,17 +40,15 @@ from pathlib import Path
 import numpy as np
 
 from slearn import __version__
-from slearn.errors import InputError
-from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.recorders.pointer import (BIN_DEG, COMMAND_NAMES, FULL_TURN_DEG, N_BINS,
-                                      PointerConfig, PointerRun, bin_of)
-from slearn.recorders.pointer_oracle import oracle_correct
-from slearn.recorders.record_pointer import (COMMAND_SCHEMA, POSITION_SCHEMA, SENSE_DELAY_NS,
-                                             TRIAL_NS, RecordSummary)
-from slearn.io.serialize import prepare_vocabulary
-from slearn.io.spec import Categorical, ChannelSpec, Spec
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.errors import InputError
+from slearn.io.serialize import prepare_vocabulary
+from slearn.io.spec import Categorical, ChannelSpec, Spec
+from slearn.recorders.mcap_episode import EpisodeWriter
+from slearn.recorders.pointer import BIN_DEG, COMMAND_NAMES, FULL_TURN_DEG, N_BINS, PointerConfig, PointerRun, bin_of
+from slearn.recorders.pointer_oracle import oracle_correct
+from slearn.recorders.record_pointer import COMMAND_SCHEMA, POSITION_SCHEMA, SENSE_DELAY_NS, TRIAL_NS, RecordSummary
 
 MAX_JOINTS = 4
 SENSORS = ("moved", "all")

@@ -35,12 +35,12 @@ from types import TracebackType
 from typing import Any, Callable, Iterable
 
 from slearn import __version__
-from slearn.io.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
-from slearn.errors import InputError, SlearnError
-from slearn.io.files import write_atomic
-from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.io.spec import Categorical, ChannelSpec, Spec
 from slearn.core.vocabulary import ROLES
+from slearn.errors import InputError, SlearnError
+from slearn.io.episodes import EPISODE_SCHEMA, EPISODE_SCHEMA_NAME, EPISODE_TOPIC
+from slearn.io.files import write_atomic
+from slearn.io.spec import Categorical, ChannelSpec, Spec
+from slearn.recorders.mcap_episode import EpisodeWriter
 
 EVENT_SCHEMA_NAME = "slearn.Event"
 EVENT_SCHEMA = {

@@ -48,9 +48,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slearn.errors import InputError
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.errors import InputError
 
 CONDITIONS = ("simple", "hardstop", "scramble", "reversal", "error", "delay")
 EFFECTS = CONDITIONS[1:]

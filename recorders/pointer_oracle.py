@@ -38,8 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slearn.errors import InputError
-from slearn.recorders.pointer import (PointerRun, command_directions, scrambled_readings,
-                                      sense)
+from slearn.recorders.pointer import PointerRun, command_directions, scrambled_readings, sense
 
 DEFAULT_CELLS_PER_BIN = 200
 

@@ -22,8 +22,15 @@ from pathlib import Path
 from slearn import __version__
 from slearn.errors import InputError
 from slearn.recorders.mcap_episode import EpisodeWriter
-from slearn.recorders.pointer import (COMMAND_CHANNEL, COMMAND_NAMES, N_BINS, POSITION_CHANNEL,
-                                      PointerConfig, PointerRun, simulate)
+from slearn.recorders.pointer import (
+    COMMAND_CHANNEL,
+    COMMAND_NAMES,
+    N_BINS,
+    POSITION_CHANNEL,
+    PointerConfig,
+    PointerRun,
+    simulate,
+)
 
 ANGLE_CHANNEL = "/pointer/angle"
 METADATA_NAME = "slearn.pointer"

@@ -43,11 +43,11 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 from slearn import __version__
+from slearn.core.vocabulary import ROLES
 from slearn.errors import InputError
 from slearn.io.files import check_output
-from slearn.recorders.live import EventFile, check_role, event_value, events_spec
 from slearn.io.spec import Spec
-from slearn.core.vocabulary import ROLES
+from slearn.recorders.live import EventFile, check_role, event_value, events_spec
 
 FORMATS = ("auto", "tokens", "spmf", "csv", "jsonl")
 DEFAULT_CHANNEL = "/stream/event"

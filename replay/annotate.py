@@ -32,15 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
+from slearn.errors import InputError, SlearnError
 from slearn.io.bags import open_log
 from slearn.io.episodes import split_episode_name
-from slearn.errors import InputError, SlearnError
 from slearn.io.files import write_atomic
-from slearn.recorders.mcap_copy import CopyWriter
-from slearn.replay.evaluation import Evaluation, EpisodeOutcome
-from slearn.replay.metrics import ChannelDecoder
 from slearn.io.serialize import iter_step_times
 from slearn.io.slicing import slice_from_dict
+from slearn.recorders.mcap_copy import CopyWriter
+from slearn.replay.evaluation import EpisodeOutcome, Evaluation
+from slearn.replay.metrics import ChannelDecoder
 
 PREDICTION_TOPIC = "/slearn/prediction"
 CORRECT_TOPIC = "/slearn/correct"

@@ -31,21 +31,30 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
+from slearn.core._jit import kernel
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.io.mcap_read import ReadReport
 from slearn.core.online import Reports
-from slearn.replay.baselines import Baselines
-from slearn.replay.honest import HonestScores
-from slearn.replay.metrics import (ChannelCounts, ChannelDecoder, Curve, Tally, channel_counts,
-                                   channel_hits, confusions, learning_curve, score_steps)
-from slearn.replay.windows import data_window
-from slearn.io.spec import Spec
 from slearn.core.stream import Episode
 from slearn.core.tokens import OBSERVATION, TokenTable, _intern
 from slearn.core.views import StepCodes
 from slearn.core.vocabulary import Vocabulary
-from slearn.core._jit import kernel
+from slearn.io.mcap_read import ReadReport
+from slearn.io.spec import Spec
+from slearn.replay.baselines import Baselines
+from slearn.replay.honest import HonestScores
+from slearn.replay.metrics import (
+    ChannelCounts,
+    ChannelDecoder,
+    Curve,
+    Tally,
+    channel_counts,
+    channel_hits,
+    confusions,
+    learning_curve,
+    score_steps,
+)
+from slearn.replay.windows import data_window
 
 SCHEMA = "slearn.replay/2"
 """Name and version of the JSON document (:meth:`Evaluation.to_dict`)."""

@@ -12,18 +12,16 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Iterator
 
-
-from slearn.io.bags import is_log_path
-from slearn.errors import DataWarning, InputError, TruncatedLogWarning
 from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.io.mcap_read import ReadReport
-from slearn.replay.baselines import Baselines
-from slearn.io.slicing import TimeSlice, slice_from_dict
-from slearn.io.spec import Spec
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
-
+from slearn.errors import DataWarning, InputError, TruncatedLogWarning
+from slearn.io.bags import is_log_path
+from slearn.io.mcap_read import ReadReport
+from slearn.io.slicing import TimeSlice, slice_from_dict
+from slearn.io.spec import Spec
+from slearn.replay.baselines import Baselines
 from slearn.replay.evaluation import FIT_PREQUENTIAL, FIT_TRAINING, Checkpoint, Evaluation, evaluate
 
 
@@ -129,8 +127,8 @@ def _read(paths: list[str], spec: Spec, vocabulary: Vocabulary, progress: bool,
 
 def _open_library(path: str | os.PathLike, spec_path: str | os.PathLike | None,
                   logs: list[str]) -> _Setup:
-    from slearn.io.spec import load_spec
     from slearn.io.library_file import load_library
+    from slearn.io.spec import load_spec
 
     loaded = load_library(path)
     if loaded.spec is not None and spec_path is not None:

@@ -7,6 +7,7 @@ import html
 import json
 import math
 import os
+
 from slearn.io.files import write_atomic
 from slearn.replay.evaluation import Evaluation
 from slearn.replay.metrics import BASELINES

@@ -20,12 +20,12 @@ from typing import Any, Hashable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slearn.errors import ParameterError
 from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.errors import ParameterError
 
 ITEM = "item"
 SCORINGS = ("adaptive", "literal")

@@ -48,11 +48,11 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from slearn.core import context_tree, hashtrie
+from slearn.core._jit import helper, kernel
 from slearn.core.hashtrie import child, child_or_add
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Step
 from slearn.core.tokens import ACTION, OBSERVATION
-from slearn.core._jit import helper, kernel
 
 _NO_STATE = -1
 

@@ -10,6 +10,7 @@ learning online from whatever goal it is given. Pure: numpy only, seeded generat
 from __future__ import annotations
 
 import numpy as np
+
 from slearn.core._jit import kernel
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 from click.testing import CliRunner
-
 from fixtures import SHARED_MCAP
+
 from slearn.cli import main
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer

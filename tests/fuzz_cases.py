@@ -8,6 +8,7 @@ import struct
 from typing import Iterator
 
 import mcap_bytes as mb
+
 from slearn.io.spec import Spec
 
 SPEC = Spec.from_dict({"mode": "change", "channel": [

@@ -4,14 +4,21 @@ import hashlib
 
 import numpy as np
 import pytest
-
-from slearn.errors import InputError
-from slearn.core.library import PatternLibrary
 from fixtures import online_correct
-from slearn.recorders.arm import (SENSORS, ArmConfig, arm_oracle_correct, arm_spec,
-                                  arm_vocabulary, record_arm, simulate_arm)
-from slearn.io.serialize import read_episodes
+
+from slearn.core.library import PatternLibrary
 from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError
+from slearn.io.serialize import read_episodes
+from slearn.recorders.arm import (
+    SENSORS,
+    ArmConfig,
+    arm_oracle_correct,
+    arm_spec,
+    arm_vocabulary,
+    record_arm,
+    simulate_arm,
+)
 
 
 def test_each_trial_moves_only_the_commanded_joint_by_one_bin():

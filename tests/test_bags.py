@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from fixtures import SHARED_MCAP
-from slearn.io.bags import log_record, open_log
+
 from slearn.cli import EXIT_TRUNCATED, main
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError
-from slearn.recorders.pointer import PointerConfig, simulate
+from slearn.io.bags import log_record, open_log
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import Spec
-from slearn.core.vocabulary import Vocabulary
+from slearn.recorders.pointer import PointerConfig, simulate
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402

@@ -11,6 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 import bench_variants as bench  # noqa: E402
 import slearn_adapter  # noqa: E402
+
 from slearn.recorders.pointer import PointerConfig, simulate  # noqa: E402
 
 

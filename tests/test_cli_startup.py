@@ -10,9 +10,9 @@ import sys
 import click
 import pytest
 from click.testing import CliRunner
+from fixtures import write_log
 
 from slearn.cli import _COMMANDS, main
-from fixtures import write_log
 
 # Runs the CLI in a fresh interpreter and prints which heavy modules it imported.
 _CHILD = """

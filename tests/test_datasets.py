@@ -5,16 +5,23 @@ import json
 
 import pytest
 from click.testing import CliRunner
-
 from fixtures import SHARED_MCAP
+
 from slearn.cli import main
-from slearn.io.bags import open_log
-from slearn.datasets.registry import (ARM_TRIALS, HELDOUT_SEEDS, POINTER_TRIALS, TRAIN_SEEDS,
-                                      build_dataset, list_datasets, sha256_of)
+from slearn.datasets.registry import (
+    ARM_TRIALS,
+    HELDOUT_SEEDS,
+    POINTER_TRIALS,
+    TRAIN_SEEDS,
+    build_dataset,
+    list_datasets,
+    sha256_of,
+)
 from slearn.errors import InputError
+from slearn.io.bags import open_log
+from slearn.io.spec import load_spec, pointer_spec
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import CONDITIONS
-from slearn.io.spec import load_spec, pointer_spec
 
 PR2_LOG = (SHARED_MCAP / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-
 import pytest
+from fixtures import SHARED_MCAP
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from fixtures import SHARED_MCAP
 from slearn.errors import DecodeError, FieldPathError
-from slearn.io.decode import (MISSING, DecoderCache, decode_payload, iter_scalar_fields, make_decoder,
-                              parse_field_path)
+from slearn.io.decode import MISSING, DecoderCache, decode_payload, iter_scalar_fields, make_decoder, parse_field_path
 from slearn.io.mcap_read import ChannelInfo, SchemaInfo, iter_messages
 
 SHARED = SHARED_MCAP

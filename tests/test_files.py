@@ -10,10 +10,18 @@ import time
 
 import pytest
 
-from slearn.io import files
 from slearn.errors import InputError
-from slearn.io.files import (INCOMPLETE_MARKER, atomic_write, check_output, claim_folder, regular_file,
-                          release_folder, sweep_stale_temps, write_atomic)
+from slearn.io import files
+from slearn.io.files import (
+    INCOMPLETE_MARKER,
+    atomic_write,
+    check_output,
+    claim_folder,
+    regular_file,
+    release_folder,
+    sweep_stale_temps,
+    write_atomic,
+)
 
 
 class FullDisk(io.FileIO):

@@ -8,12 +8,11 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
-from slearn.io import files
-from slearn.cli import main
-
 from test_datasets import PR2_LOG
 from test_files import FullDisk
+
+from slearn.cli import main
+from slearn.io import files
 
 OLD = b"the previous output, which must survive\n"
 

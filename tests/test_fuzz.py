@@ -12,20 +12,19 @@ import warnings
 
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
-
-from slearn.errors import SlearnError
-from slearn.jobs.info import describe_log
-from slearn.core.library import PatternLibrary
-from slearn.io.serialize import read_episodes
-from slearn.io.spec import Spec, parse_channel_option
-from slearn.io.library_info import describe
-from slearn.io.library_file import METADATA_KEY, load_library
-from slearn.core.vocabulary import Vocabulary
-
 from fuzz_cases import SPEC, base_logs, json_paths, record_bounds
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_storage import learned, save
 
+from slearn.core.library import PatternLibrary
+from slearn.core.vocabulary import Vocabulary
+from slearn.errors import SlearnError
+from slearn.io.library_file import METADATA_KEY, load_library
+from slearn.io.library_info import describe
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import Spec, parse_channel_option
+from slearn.jobs.info import describe_log
 
 
 def fuzz(examples: int):

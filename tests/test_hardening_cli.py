@@ -7,15 +7,14 @@ import json
 import os
 import struct
 
+import mcap_bytes as mb
 import pytest
 from click.testing import CliRunner
-
-import mcap_bytes as mb
 from fixtures import POINTER_TOML, write_log
+from test_library_header import _set, edited
+
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.io.library_file import load_library
-
-from test_library_header import edited, _set
 
 
 def run(*args, env=None):

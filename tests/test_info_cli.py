@@ -7,11 +7,11 @@ import re
 
 import pytest
 from click.testing import CliRunner
+from fixtures import SHARED_MCAP, write_log
 
 from slearn.cli import EXIT_TRUNCATED, main
-from slearn.jobs.info import describe_log, suggest_spec
 from slearn.io.spec import load_spec
-from fixtures import SHARED_MCAP, write_log
+from slearn.jobs.info import describe_log, suggest_spec
 
 SHARED = SHARED_MCAP
 

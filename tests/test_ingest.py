@@ -12,12 +12,12 @@ from mcap.writer import CompressionType, Writer
 
 import slearn.io.ingest as ingest
 import slearn.jobs.learn as learn_module
-from slearn.jobs.learn import learn_files
+from slearn.core.vocabulary import Vocabulary
 from slearn.io.mcap_read import ReadReport
 from slearn.io.serialize import RangeCounts, _log_episodes, prepare_vocabulary, read_episodes
 from slearn.io.slicing import TimeBound, TimeSlice
 from slearn.io.spec import Spec, pointer_spec
-from slearn.core.vocabulary import Vocabulary
+from slearn.jobs.learn import learn_files
 
 SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
                if (p / "shared" / "data" / "mcap").is_dir()), Path("/nonexistent"))

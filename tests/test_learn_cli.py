@@ -8,12 +8,12 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import EXIT_TRUNCATED, main
+from slearn.io.library_file import load_library
+from slearn.io.library_info import describe
 from slearn.jobs.learn import learn_files
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.io.library_info import describe
-from slearn.io.library_file import load_library
 
 TRIALS = 2_000
 

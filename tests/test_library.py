@@ -3,18 +3,19 @@ exact merging, determinism, export round trips."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
-
 from naive import NaiveOccurrences
-from slearn.errors import ParameterError, SlearnError
+
 from slearn.core.library import PatternLibrary
-from slearn.jobs.merge import merge_libraries
-from slearn.io.library_file import LoadedLibrary, library_params
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION
 from slearn.core.vocabulary import ACTION as ACTION_ROLE
 from slearn.core.vocabulary import OBSERVATION, Vocabulary
+from slearn.errors import ParameterError, SlearnError
+from slearn.io.library_file import LoadedLibrary, library_params
+from slearn.jobs.merge import merge_libraries
 
 
 def two_channel_vocabulary() -> Vocabulary:

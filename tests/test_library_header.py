@@ -7,16 +7,15 @@ import json
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
+from fixtures import write_log
+from test_storage import learned, save
 
 from slearn.cli import main
 from slearn.errors import LibraryFormatError
+from slearn.io.library_file import METADATA_KEY, load_library, read_info
 from slearn.io.library_header import FORMAT_VERSION, HEADER, Field, validate_header
 from slearn.io.library_info import describe
 from slearn.jobs.merge import merge_files
-from slearn.io.library_file import METADATA_KEY, load_library, read_info
-
-from fixtures import write_log
-from test_storage import learned, save
 
 
 @pytest.fixture(scope="module")

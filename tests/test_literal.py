@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
-
 from naive import NaiveLibrary
+
 from slearn.core.literal import LiteralLibrary as PatternLibrary
 from slearn.core.stream import Episode
 

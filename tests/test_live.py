@@ -5,11 +5,11 @@ import itertools
 import pytest
 from mcap.reader import make_reader
 
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError, SlearnError
-from slearn.recorders.live import LiveRecorder, events_spec, spec_toml
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import Bins, ChannelSpec, Spec, load_spec
-from slearn.core.vocabulary import Vocabulary
+from slearn.recorders.live import LiveRecorder, events_spec, spec_toml
 
 
 def _clock():

@@ -9,7 +9,7 @@ from slearn import __version__
 from slearn.errors import InputError, SlearnError
 from slearn.recorders.mcap_episode import EpisodeWriter, stamp
 from slearn.recorders.pointer import PointerConfig, simulate
-from slearn.recorders.record_pointer import (TRIAL_NS, record_pointer, write_pointer_mcap)
+from slearn.recorders.record_pointer import TRIAL_NS, record_pointer, write_pointer_mcap
 
 SCHEMA = {"type": "object", "properties": {"value": {"type": "integer"}}}
 

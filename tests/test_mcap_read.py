@@ -8,9 +8,9 @@ import warnings
 from pathlib import Path
 
 import pytest
+from fixtures import SHARED_MCAP
 from mcap.writer import CompressionType, IndexType, Writer
 
-from fixtures import SHARED_MCAP
 from slearn.errors import InputError, TruncatedLogWarning
 from slearn.io.mcap_read import McapLog, ReadReport, iter_messages
 
@@ -239,6 +239,7 @@ def test_random_corruption_never_escapes_as_a_traceback(tmp_path):
 # --- hostile chunks: bombs, sizes that lie, zero runs, memory limits ----------------------
 
 import mcap_bytes as mb  # noqa: E402
+
 from slearn.io import mcap_read  # noqa: E402
 
 

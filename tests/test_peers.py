@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.core.stream import Episode
 from slearn.core.tokens import TokenTable
+from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 

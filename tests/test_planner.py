@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
+from test_literal import L, R, pointer_episode
 
 from slearn.core.library import PatternLibrary
-from slearn.planner import Planner, PlannerSettings, distribution
-from slearn.recorders.pointer import PointerConfig, simulate
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION, OBSERVATION
-from test_literal import L, R, pointer_episode
+from slearn.planner import Planner, PlannerSettings, distribution
+from slearn.recorders.pointer import PointerConfig, simulate
 
 POS = 10  # position k is symbol k + 10 (see test_library.pointer_episode)
 POINTER_L, POINTER_R = 0, 1  # in pointer_vocabulary, label k is symbol k + 1

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from slearn.errors import InputError, SlearnError
-from slearn.recorders.pointer import (CONDITIONS, L, N_BINS, R, PointerConfig, pointer_vocabulary,
-                                      simulate)
+from slearn.recorders.pointer import CONDITIONS, N_BINS, L, PointerConfig, R, pointer_vocabulary, simulate
 
 
 def _run(condition, trials=4000, seed=0, **kwargs):

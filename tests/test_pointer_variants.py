@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from slearn.errors import InputError
-from slearn.recorders.pointer import (CONDITIONS, PointerConfig, command_directions,
-                                      scrambled_readings, simulate)
+from slearn.recorders.pointer import CONDITIONS, PointerConfig, command_directions, scrambled_readings, simulate
 from slearn.recorders.pointer_oracle import oracle_correct, oracle_predict
 from slearn.recorders.record_pointer import record_pointer
 

@@ -1,15 +1,16 @@
 """Prediction from a history: the adaptive library, the literal rule against brute force."""
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
-
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from naive import NaiveLibrary, naive_context_stats
+from test_literal import L, R, pointer_episode
+
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor
-from slearn.recorders.pointer import pointer_vocabulary
 from slearn.core.stream import Episode
-from test_literal import L, R, pointer_episode
+from slearn.recorders.pointer import pointer_vocabulary
 
 POS = 10  # position k is symbol k + 10 (see test_literal.pointer_episode)
 

@@ -5,15 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from slearn.errors import ParameterError
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor
-from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 from slearn.core.stream import Episode
 from slearn.core.views import UNKNOWN, StepCodes, new_view_state
+from slearn.errors import ParameterError
+from slearn.recorders.arm import ArmConfig, arm_vocabulary, simulate_arm
 
 
 def reference(library, steps, top_k, unknown_views=None):

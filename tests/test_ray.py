@@ -17,15 +17,15 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import main
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError
+from slearn.io.library_file import load_library
+from slearn.io.slicing import time_slice
+from slearn.io.spec import pointer_spec
 from slearn.jobs.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-from slearn.io.slicing import time_slice
-from slearn.io.spec import pointer_spec
-from slearn.io.library_file import load_library
-from slearn.core.vocabulary import Vocabulary
 
 ray = pytest.importorskip("ray")
 

@@ -10,19 +10,18 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from fixtures import POINTER_TOML
 
 from slearn.core.library import PatternLibrary
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.io.spec import pointer_spec
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.baselines import Baselines
-from slearn.replay.evaluation import (FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate,
-                                      iter_evaluation)
+from slearn.replay.evaluation import FIT_PREQUENTIAL, FIT_TRAINING, SCHEMA, SURPRISE_FLOOR, evaluate, iter_evaluation
 from slearn.replay.replay_logs import replay_logs
 from slearn.replay.windows import data_window
-from slearn.io.spec import pointer_spec
-from slearn.core.stream import Episode
-from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
-from fixtures import POINTER_TOML
 
 
 def pointer_episode(condition="simple", trials=2000, seed=0, **kw):

@@ -6,15 +6,15 @@ import json
 
 import pytest
 from click.testing import CliRunner
+from fixtures import POINTER_TOML
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED, main
 from slearn.core.library import PatternLibrary
-from slearn.recorders.pointer import PointerConfig
-from slearn.recorders.record_pointer import record_pointer
+from slearn.core.vocabulary import Vocabulary
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import pointer_spec
-from slearn.core.vocabulary import Vocabulary
-from fixtures import POINTER_TOML
+from slearn.recorders.pointer import PointerConfig
+from slearn.recorders.record_pointer import record_pointer
 
 storage = pytest.importorskip("slearn.storage")
 
@@ -115,8 +115,8 @@ def test_spec_without_library_starts_empty_and_learns_online(files):
 
 
 def test_truncated_log_exits_3_after_scoring_what_was_salvaged(files, tmp_path):
-    from tests.test_replay import write_small_chunks
     from slearn.recorders.pointer import simulate
+    from tests.test_replay import write_small_chunks
 
     whole, cut = tmp_path / "whole.mcap", tmp_path / "cut.mcap"
     write_small_chunks(simulate(PointerConfig("simple", trials=1500, seed=3)), whole)

@@ -17,15 +17,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from fixtures import SHARED_MCAP
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from fixtures import SHARED_MCAP
 from slearn.cli import main
+from slearn.io.spec import load_spec
 from slearn.recorders.arm import ArmConfig, simulate_arm
 from slearn.recorders.pointer import BIN_DEG, PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
-from slearn.io.spec import load_spec
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
@@ -76,7 +76,8 @@ TYPES = {"/joint_states": "sensor_msgs/msg/JointState", "/pointer/cmd": "std_msg
 
 def record_rosbag2(folder: Path, messages) -> Path:
     """What `ros2 bag record -s mcap` leaves: a rosbag2 folder (written with rosbags)."""
-    from rosbags.rosbag2 import StoragePlugin, Writer as BagWriter
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as BagWriter
 
     with BagWriter(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {t: writer.add_connection(t, m, typestore=STORE) for t, m in TYPES.items()}
@@ -181,7 +182,8 @@ def arm_messages(seed: int, trials: int):
 def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_path):
     """Several joints in one JointState and one Float64MultiArray command: every joint is
     its own view, so frozen replay reaches the deterministic ceiling (slearn 0.1: 11.9 %)."""
-    from rosbags.rosbag2 import StoragePlugin, Writer as BagWriter
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as BagWriter
 
     def record(folder, messages):
         with BagWriter(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:

@@ -6,12 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from fixtures import SHARED_MCAP, write_log
 
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import SpecError, TruncatedLogWarning
 from slearn.io.serialize import fit_spec, read_episodes
 from slearn.io.spec import Spec, load_spec, pointer_spec
-from slearn.core.vocabulary import Vocabulary
-from fixtures import SHARED_MCAP, write_log
 
 SHARED = SHARED_MCAP
 ROBOT = SHARED / "robot"

@@ -6,12 +6,12 @@ import json
 import math
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
-from slearn.errors import SpecError
-from slearn.io.spec import (Bins, Categorical, Spec, load_spec, parse_channel_option, pointer_spec,
-                         spec_from_options)
 from slearn.core.vocabulary import Vocabulary
+from slearn.errors import SpecError
+from slearn.io.spec import Bins, Categorical, Spec, load_spec, parse_channel_option, pointer_spec, spec_from_options
 
 GOOD = """
 mode = "tick"

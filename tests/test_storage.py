@@ -7,19 +7,20 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from slearn.errors import InputError, LibraryFormatError, SpecError
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.io.spec import Bins, Categorical, ChannelSpec, Spec
-from slearn.io.library_header import FORMAT_VERSION
-from slearn.io.library_info import describe
-from slearn.jobs.merge import merge_libraries
-from slearn.io.library_file import METADATA_KEY, load_library, read_info, save_library
 from slearn.core.stream import Episode
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError, LibraryFormatError, SpecError
+from slearn.io.library_file import METADATA_KEY, load_library, read_info, save_library
+from slearn.io.library_header import FORMAT_VERSION
+from slearn.io.library_info import describe
+from slearn.io.spec import Bins, Categorical, ChannelSpec, Spec
+from slearn.jobs.merge import merge_libraries
 
 PARAMS = {"scoring": "literal"}
 PROVENANCE = {"slearn_version": "test", "inputs": [{"path": "a.mcap", "size_bytes": 1, "sha256": "0" * 64}],

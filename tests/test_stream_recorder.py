@@ -5,16 +5,16 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from fixtures import online_correct
 from mcap.reader import make_reader
 
-from fixtures import online_correct
 from slearn.cli import main
-from slearn.errors import InputError
 from slearn.core.library import PatternLibrary
-from slearn.recorders.record_stream import convert_stream, detect_format, stream_spec
+from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import load_spec
-from slearn.core.vocabulary import Vocabulary
+from slearn.recorders.record_stream import convert_stream, detect_format, stream_spec
 
 
 def _steps(paths, spec):

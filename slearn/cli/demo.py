@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from slearn.jobs.demo import PAPER, RULES, DemoResult, run_demo
 from slearn.io.files import claim_folder, release_folder, write_atomic
+from slearn.jobs.demo import PAPER, RULES, DemoResult, run_demo
 from slearn.recorders.pointer import CONDITIONS
 
 # What the demo writes in its folder; a rerun after a killed run replaces these.

@@ -9,13 +9,21 @@ import warnings
 import click
 
 from slearn.cli import EXIT_TRUNCATED
-from slearn.cli.common import (CHANNEL_HELP, echo_progress, make_slice, ray_options, reader_for, slice_options,
-                               topic_list, warnings_on_stderr)
+from slearn.cli.common import (
+    CHANNEL_HELP,
+    echo_progress,
+    make_slice,
+    ray_options,
+    reader_for,
+    slice_options,
+    topic_list,
+    warnings_on_stderr,
+)
 from slearn.cli.limits import LENGTH, PATTERNS, FiniteFloat
 from slearn.errors import TruncatedLogWarning
 from slearn.io.files import refuse_inputs
-from slearn.jobs.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
 from slearn.io.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
+from slearn.jobs.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
 
 
 def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,

@@ -7,14 +7,13 @@ from pathlib import Path
 
 import click
 
-from slearn.errors import InputError
 from slearn.cli.limits import MAX_TRIALS, FiniteFloat
+from slearn.errors import InputError
 from slearn.io.files import check_output
-from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.live import spec_toml, write_text
+from slearn.recorders.pointer import CONDITIONS, PointerConfig
 from slearn.recorders.record_pointer import RecordSummary, record_pointer
-from slearn.recorders.record_stream import (DEFAULT_CHANNEL, FORMATS, TICK_NS, StreamSummary,
-                                     convert_stream, stream_spec)
+from slearn.recorders.record_stream import DEFAULT_CHANNEL, FORMATS, TICK_NS, StreamSummary, convert_stream, stream_spec
 
 
 @click.group(name="record")

@@ -8,13 +8,13 @@ import os
 
 import click
 
-from slearn.io.bags import is_log_path
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
 from slearn.cli.common import make_slice, ray_options, reader_for, slice_options, topic_list
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
-from slearn.errors import InputError
-from slearn.io.files import check_output
 from slearn.core.library import DEFAULT_MAX_LENGTH
+from slearn.errors import InputError
+from slearn.io.bags import is_log_path
+from slearn.io.files import check_output
 from slearn.io.slicing import HELDOUT
 
 _MCAP_MAGIC = b"\x89MCAP"

@@ -24,9 +24,9 @@ import hashlib
 import os
 import shutil
 import time
-from typing import Any
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numba
 from numba.core import types

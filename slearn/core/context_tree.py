@@ -25,8 +25,8 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core import hashtable
-from slearn.core.hashtable import EMPTY, doubled, find, probe
 from slearn.core._jit import helper
+from slearn.core.hashtable import EMPTY, doubled, find, probe
 
 
 class Tree(NamedTuple):

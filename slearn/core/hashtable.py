@@ -12,6 +12,7 @@ records are never deleted one by one: a structure that forgets rebuilds its tabl
 from __future__ import annotations
 
 import numpy as np
+
 from slearn.core._jit import helper, kernel
 
 EMPTY = -1

@@ -26,15 +26,14 @@ rule of :func:`slearn.jobs.merge.merge_libraries`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 from typing import cast
 
 import numpy as np
 
 from slearn.core import context_tree, views
-from slearn.core.hashtable import rebuild
+from slearn.core._jit import kernel
 from slearn.core.context_tree import Tree
-from slearn.errors import ParameterError
+from slearn.core.hashtable import rebuild
 from slearn.core.mixer import Mixer, new_mixer, with_views
 from slearn.core.online import Reports, Run, new_reports, run_codes
 from slearn.core.stream import Episode
@@ -42,7 +41,7 @@ from slearn.core.tokens import ACTION, OBSERVATION, TokenTable
 from slearn.core.views import NO_VIEW, StepCodes, ViewState
 from slearn.core.vocabulary import OBSERVATION as OBSERVATION_ROLE
 from slearn.core.vocabulary import Vocabulary
-from slearn.core._jit import kernel
+from slearn.errors import ParameterError
 
 DEFAULT_MAX_LENGTH = 6
 """Steps of history a context spans at most (an action and an observation each)."""

@@ -22,16 +22,15 @@ from typing import Iterator
 
 import numpy as np
 
-from slearn.errors import ParameterError
-
 from slearn.core import context_index, hashtrie, views
+from slearn.core._jit import helper, kernel
 from slearn.core.context_index import ContextIndex
 from slearn.core.hashtrie import child, child_or_add, path_tokens
+from slearn.core.online import Reports
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION, OBSERVATION, TokenTable
-from slearn.core.online import Reports
 from slearn.core.views import StepCodes
-from slearn.core._jit import helper, kernel
+from slearn.errors import ParameterError
 
 JOINT = "*"
 

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from slearn.core._jit import helper, kernel
 from slearn.core.context_index import find_entry, ranks_above
 from slearn.core.hashtrie import child
 from slearn.core.literal import has_room, learn_step
 from slearn.core.mixer import FREQUENT
 from slearn.core.online import Reports, new_reports
 from slearn.core.views import StepCodes, token_stream
-from slearn.core._jit import helper, kernel
 
 
 def run_literal(library, codes: StepCodes, learn: bool, record: bool, top_k: int) -> Reports:

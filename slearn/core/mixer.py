@@ -42,6 +42,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+
 from slearn.core._jit import helper
 
 FREQUENT, RECENT, FRESH = 0, 1, 2

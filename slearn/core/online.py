@@ -21,11 +21,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from slearn.core.context_tree import (child, child_or_add, credit, entry_or_add, hit_probability, node_total,
-                                 ranks_above, refresh)
-from slearn.core.views import NO_TOKEN
-from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core._jit import helper, kernel
+from slearn.core.context_tree import (
+    child,
+    child_or_add,
+    credit,
+    entry_or_add,
+    hit_probability,
+    node_total,
+    ranks_above,
+    refresh,
+)
+from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
+from slearn.core.views import NO_TOKEN
 
 
 class Reports(NamedTuple):

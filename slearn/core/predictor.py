@@ -19,13 +19,13 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core._jit import helper, kernel
-from slearn.errors import ParameterError
 from slearn.core.context_tree import Tree
 from slearn.core.mixer import KINDS, Mixer
 from slearn.core.online import Reports, Run, _hold_silent, new_reports, run_codes
 from slearn.core.stream import Episode, Step
 from slearn.core.tokens import ACTION, OBSERVATION
 from slearn.core.views import NO_TOKEN, UNKNOWN, StepCodes, ViewState, new_view_state
+from slearn.errors import ParameterError
 
 
 @dataclass(frozen=True)

@@ -12,9 +12,9 @@ from collections import namedtuple
 
 import numpy as np
 
-from slearn.core.stream import Episode
-from slearn.core.hashtable import doubled
 from slearn.core._jit import helper, kernel
+from slearn.core.hashtable import doubled
+from slearn.core.stream import Episode
 
 OBSERVATION = 0
 ACTION = 1

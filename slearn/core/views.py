@@ -23,10 +23,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from slearn.errors import ParameterError
+from slearn.core._jit import helper, kernel
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION, OBSERVATION, TokenTable, _find, _hash, _intern
-from slearn.core._jit import helper, kernel
+from slearn.errors import ParameterError
 
 NO_VIEW = -1
 NO_TOKEN = -1

@@ -37,8 +37,16 @@ from typing import Callable, Iterable, Iterator
 
 from slearn.errors import InputError
 from slearn.io.files import regular_file
-from slearn.io.mcap_read import (UNKNOWN_OFFSET, AttachmentInfo, ChannelInfo, McapLog, RawMessage,
-                              ReadReport, SchemaInfo, max_chunk_bytes_setting)
+from slearn.io.mcap_read import (
+    UNKNOWN_OFFSET,
+    AttachmentInfo,
+    ChannelInfo,
+    McapLog,
+    RawMessage,
+    ReadReport,
+    SchemaInfo,
+    max_chunk_bytes_setting,
+)
 
 METADATA_FILE = "metadata.yaml"
 BAG_SUFFIXES = (".db3", ".bag")

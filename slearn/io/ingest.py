@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, cast
 
 import numpy as np
 
-from slearn.io import cdr
-from slearn.io.decode import MISSING, DecodeError, DecoderCache, decode_payload
-from slearn.errors import SpecError
-from slearn.io.mcap_read import MessageBatch, ReadReport, iter_batches_of
-from slearn.io.spec import Bins, Spec
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, Vocabulary
+from slearn.errors import SpecError
+from slearn.io import cdr
+from slearn.io.decode import MISSING, DecodeError, DecoderCache, decode_payload
+from slearn.io.mcap_read import MessageBatch, ReadReport, iter_batches_of
+from slearn.io.spec import Bins, Spec
 
 if TYPE_CHECKING:
     from slearn.io.serialize import _TickSampler
@@ -234,7 +234,7 @@ class _Symbols:
             keyed[index] = where, self._keys(index, [values[i] for i in where.tolist()])
             self._map(index, *keyed[index], out, new)
         new.sort(key=lambda item: item[0])
-        for i, index, key in new:
+        for _, index, key in new:
             self._register(index, key)
         for index in {index for _, index, _ in new}:  # every value of the entry is known now
             self._map(index, *keyed[index], out, [])
@@ -643,7 +643,7 @@ def iter_pieces(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary, rep
     ``report`` receives the read report. ``new_stream(name)`` makes what each episode's
     values go to (default: an episode stream that emits the pieces)."""
     from slearn.io.bags import open_log
-    from slearn.io.serialize import _Progress, _check_coverage, _window
+    from slearn.io.serialize import _check_coverage, _Progress, _window
 
     path = os.fspath(path)
     pieces: list[Piece] = []

@@ -51,15 +51,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slearn.errors import InputError, LibraryFormatError
-from slearn.io.files import atomic_write, check_output, regular_file
 from slearn.core.library import PatternLibrary
-from slearn.io.library_header import FORMAT_NAME, FORMAT_VERSION, TABLES, parse_header
 from slearn.core.literal import LiteralLibrary
 from slearn.core.mixer import Mixer
-from slearn.io.spec import Bins, Spec
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError, LibraryFormatError
+from slearn.io.files import atomic_write, check_output, regular_file
+from slearn.io.library_header import FORMAT_NAME, FORMAT_VERSION, TABLES, parse_header
+from slearn.io.spec import Bins, Spec
 
 METADATA_KEY = b"slearn"
 SCORINGS = ("adaptive", "literal")

@@ -22,8 +22,9 @@ from os import PathLike
 from typing import Any, Callable, Mapping
 
 from slearn import __version__
+from slearn.core.library import MAX_MAX_LENGTH
+from slearn.core.library import MAX_PATTERNS as MAX_BOUND
 from slearn.errors import LibraryFormatError, SpecError
-from slearn.core.library import MAX_MAX_LENGTH, MAX_PATTERNS as MAX_BOUND
 
 FORMAT_NAME = "slearn-library"
 FORMAT_VERSION = 2

@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from slearn.io.spec import value_labels
-from slearn.io.library_file import load_library, read_info
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
+from slearn.io.library_file import load_library, read_info
+from slearn.io.spec import value_labels
 
 TOP_PATTERNS = 10
 MAX_LISTED_VALUES = 100

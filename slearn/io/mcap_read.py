@@ -35,11 +35,11 @@ from __future__ import annotations
 
 import heapq
 import os
-from array import array
 import stat
 import struct
 import warnings
 import zlib
+from array import array
 from dataclasses import dataclass, field
 from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
 

@@ -21,11 +21,11 @@ from typing import Iterable, Iterator, cast
 
 import numpy as np
 
-from slearn.io import ingest
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, SpecError
+from slearn.io import ingest
 from slearn.io.mcap_read import ReadReport
 from slearn.io.spec import Bins, Spec
-from slearn.core.vocabulary import Vocabulary
 
 _COLUMNS = (("time", np.uint64), ("entry", np.int32), ("code", np.int64), ("value", np.float64))
 

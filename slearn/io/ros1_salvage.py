@@ -26,9 +26,18 @@ from typing import BinaryIO, Callable, Iterable, Iterator
 
 from slearn.errors import InputError
 from slearn.io.files import regular_file
-from slearn.io.mcap_read import (MAX_CHUNK_ENV, AttachmentInfo, ChannelInfo, RawMessage, ReadReport,
-                              SchemaInfo, block_cost, check_room, decompress_exactly,
-                              max_chunk_bytes_setting)
+from slearn.io.mcap_read import (
+    MAX_CHUNK_ENV,
+    AttachmentInfo,
+    ChannelInfo,
+    RawMessage,
+    ReadReport,
+    SchemaInfo,
+    block_cost,
+    check_room,
+    decompress_exactly,
+    max_chunk_bytes_setting,
+)
 
 MAGIC = b"#ROSBAG V2.0\n"
 _OP_MESSAGE, _OP_CHUNK, _OP_CONNECTION = 0x02, 0x05, 0x07

@@ -48,17 +48,15 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator, cast
 
 import numpy as np
 
-from slearn.io.decode import MISSING, DecoderCache, FieldPath, decode_payload
-from slearn.errors import DecodeError, FieldPathError
-from slearn.io.bags import open_log
-from slearn.io.episodes import EPISODE_TOPIC, episode_name
-from slearn.errors import DataWarning, InputError, SpecError, TruncatedLogWarning
-from slearn.io.mcap_read import ReadReport
-from slearn.io.slicing import TimeSlice
-from slearn.io.spec import (POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec,
-                         value_labels)
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, Vocabulary
+from slearn.errors import DataWarning, DecodeError, FieldPathError, InputError, SpecError, TruncatedLogWarning
+from slearn.io.bags import open_log
+from slearn.io.decode import MISSING, DecoderCache, FieldPath, decode_payload
+from slearn.io.episodes import EPISODE_TOPIC, episode_name
+from slearn.io.mcap_read import ReadReport
+from slearn.io.slicing import TimeSlice
+from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec, value_labels
 
 if TYPE_CHECKING:
     from slearn.io.ingest import Piece
@@ -470,7 +468,7 @@ def _log_episodes(path: str, spec: Spec, vocabulary: Vocabulary, report: ReadRep
         key, first = pending[0], pending[1:]
         pending = None
 
-        def values() -> Iterator[tuple]:
+        def values(first=first, key=key) -> Iterator[tuple]:  # this episode's, bound now
             nonlocal pending
             yield first
             for item in stream:

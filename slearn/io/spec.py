@@ -59,18 +59,17 @@ included, so a saved library re-bins held-out logs identically.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import tomllib
 from collections import Counter
-import dataclasses
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Hashable, Iterable
 
-from slearn.io.decode import FieldPath, parse_field_path, split_outside_brackets
-from slearn.errors import FieldPathError
-from slearn.errors import SpecError
 from slearn.core.vocabulary import ACTION, OBSERVATION, ROLES
+from slearn.errors import FieldPathError, SpecError
+from slearn.io.decode import FieldPath, parse_field_path, split_outside_brackets
 
 MODES = ("message", "change", "tick")
 CHANNEL_MODES = ("message", "change")

@@ -20,12 +20,12 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
+from slearn.core.vocabulary import Vocabulary
+from slearn.io.serialize import read_episodes
+from slearn.io.spec import pointer_spec
 from slearn.recorders.pointer import CONDITIONS, PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
 from slearn.recorders.record_pointer import write_pointer_mcap
-from slearn.io.serialize import read_episodes
-from slearn.io.spec import pointer_spec
-from slearn.core.vocabulary import Vocabulary
 
 RULES = ("adaptive", "literal")
 WINDOW = 1000
@@ -153,8 +153,8 @@ def _mean(curves: list[list[float]]) -> list[float]:
 def save_library_file(path: str, library: PatternLibrary | LiteralLibrary,
                       vocabulary: Vocabulary, log: Path, seed: int) -> int:
     """Store a demo library like ``slearn learn`` would; return the file's size in bytes."""
-    from slearn.jobs.learn import build_provenance
     from slearn.io.library_file import save_library
+    from slearn.jobs.learn import build_provenance
 
     provenance = build_provenance([str(log)])
     provenance["demo_seed"] = seed

@@ -31,14 +31,14 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
-from slearn.jobs.cluster import MAX_RETRIES, Rate, check_visible, gather
+from slearn.core.stream import Episode
+from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, SpecError, TruncatedLogWarning
 from slearn.io.mcap_read import ReadReport
 from slearn.io.serialize import prepare_vocabulary, read_episodes
 from slearn.io.slicing import TimeSlice, slice_from_dict
 from slearn.io.spec import Spec
-from slearn.core.stream import Episode
-from slearn.core.vocabulary import Vocabulary
+from slearn.jobs.cluster import MAX_RETRIES, Rate, check_visible, gather
 
 IN_FLIGHT_PER_CPU = 2
 

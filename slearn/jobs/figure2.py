@@ -10,8 +10,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from slearn.jobs.demo import DemoResult  # noqa: E402
 from slearn.io.files import atomic_write  # noqa: E402
+from slearn.jobs.demo import DemoResult  # noqa: E402
 
 # The paper's line styles: simple bold solid, hard stop dotted, scramble fine solid,
 # reversal fine dashed, random error dashed, random delay dash-dot.

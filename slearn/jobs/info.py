@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Iterable
 
+from slearn.errors import DecodeError
 from slearn.io.bags import open_log
 from slearn.io.decode import DecoderCache, decode_payload, iter_scalar_fields
-from slearn.errors import DecodeError
 from slearn.io.mcap_read import ChannelInfo, ReadReport
 from slearn.io.slicing import TimeSlice
 

@@ -27,19 +27,19 @@ from typing import Callable, Iterator, Sequence, cast
 
 from slearn import __version__
 from slearn.core import literal
-from slearn.io.bags import is_log_path, log_record, open_log
-from slearn.errors import DataWarning, InputError, SpecError
-from slearn.io.files import check_output, regular_file
 from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
-from slearn.io.library_header import MAX_TIME_UNIX
 from slearn.core.literal import LiteralLibrary
+from slearn.core.vocabulary import Vocabulary
+from slearn.errors import DataWarning, InputError, SpecError
+from slearn.io.bags import is_log_path, log_record, open_log
+from slearn.io.files import check_output, regular_file
+from slearn.io.library_file import load_library, save_library
+from slearn.io.library_header import MAX_TIME_UNIX
 from slearn.io.mcap_read import ReadReport
 from slearn.io.onepass import can_fit_in_one_pass, fit_and_read
 from slearn.io.serialize import fit_spec, read_episodes, read_pieces
 from slearn.io.slicing import TimeSlice
 from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
-from slearn.io.library_file import load_library, save_library
-from slearn.core.vocabulary import Vocabulary
 
 SCORING_RULES = ("adaptive", "literal")
 DEFAULT_SCORING = "adaptive"

@@ -27,21 +27,19 @@ parses are not those of one run.
 from __future__ import annotations
 
 import os
-
 from typing import cast
 
 import numpy as np
 
 from slearn import __version__
-from slearn.errors import InputError, SpecError
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import Mixer
-from slearn.core.mixer import new_mixer
-from slearn.io.files import check_output
-from slearn.io.library_file import LoadedLibrary, SaveSummary, file_record, load_library, save_library
+from slearn.core.mixer import Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError, SpecError
+from slearn.io.files import check_output
+from slearn.io.library_file import LoadedLibrary, SaveSummary, file_record, load_library, save_library
 
 
 def merge_libraries(a: LoadedLibrary, b: LoadedLibrary) -> LoadedLibrary:

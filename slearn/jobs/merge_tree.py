@@ -35,21 +35,28 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from slearn import __version__
-from slearn.jobs.cluster import (MAX_RETRIES, Rate, check_visible, gather, library_bytes,
-                            library_from_bytes, loaded_bytes, ray_session)
-from slearn.errors import DataWarning, InputError
-from slearn.io.files import check_output
-from slearn.jobs.learn import (LearnResult, _check_scoring, _new_job, _resumed_job, build_provenance,
-                          source_date_epoch)
 from slearn.core.library import PatternLibrary
+from slearn.core.vocabulary import Vocabulary
+from slearn.errors import DataWarning, InputError
+from slearn.io.bags import log_record
+from slearn.io.files import check_output
+from slearn.io.library_file import save_library
 from slearn.io.mcap_read import ReadReport
-from slearn.jobs.merge import merge_libraries
 from slearn.io.serialize import prepare_vocabulary, read_episodes
 from slearn.io.slicing import TimeSlice, slice_from_dict
 from slearn.io.spec import Spec
-from slearn.io.bags import log_record
-from slearn.io.library_file import save_library
-from slearn.core.vocabulary import Vocabulary
+from slearn.jobs.cluster import (
+    MAX_RETRIES,
+    Rate,
+    check_visible,
+    gather,
+    library_bytes,
+    library_from_bytes,
+    loaded_bytes,
+    ray_session,
+)
+from slearn.jobs.learn import LearnResult, _check_scoring, _new_job, _resumed_job, build_provenance, source_date_epoch
+from slearn.jobs.merge import merge_libraries
 
 # A partial library's provenance: the job writes the real one (every input, in order).
 _PARTIAL = {"slearn_version": __version__, "inputs": [], "time_unix": 0,
