@@ -10,14 +10,12 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
-from slearn.cli import EXIT_TRUNCATED, main
-from slearn.io.bags import open_log
-
-rosbags = pytest.importorskip("rosbags")
 from rosbags.rosbag1 import Writer as Ros1Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from test_bags import pointer_messages, split_folder, write_ros1_bag  # noqa: E402
+
+from slearn.cli import EXIT_TRUNCATED, main
+from slearn.io.bags import open_log
 
 T0 = 1_700_000_000_000_000_000
 SPEC_TOML = ('[[channel]]\ntopic = "/cmd"\nfield = "data"\nrole = "action"\n'

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from fixtures import SHARED_MCAP
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from slearn.cli import EXIT_TRUNCATED, main
 from slearn.core.vocabulary import Vocabulary
@@ -18,9 +19,6 @@ from slearn.io.bags import log_record, open_log
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import Spec
 from slearn.recorders.pointer import PointerConfig, simulate
-
-rosbags = pytest.importorskip("rosbags")
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 SHARED = SHARED_MCAP / "robot" / "rosbag2_tests"
 SPEC = {"channel": [{"topic": "/cmd", "field": "data", "role": "action", "values": [-1, 1]},

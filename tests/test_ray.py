@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import ray
 from click.testing import CliRunner
 
 from slearn.cli import main
@@ -22,15 +23,12 @@ from slearn.errors import InputError
 from slearn.io.library_file import load_library
 from slearn.io.slicing import time_slice
 from slearn.io.spec import pointer_spec
+from slearn.jobs.cluster import check_visible, require_ray  # noqa: E402
+from slearn.jobs.distributed import RayReader  # noqa: E402
 from slearn.jobs.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-
-ray = pytest.importorskip("ray")
-
-from slearn.jobs.cluster import check_visible, require_ray  # noqa: E402
-from slearn.jobs.distributed import RayReader  # noqa: E402
 
 
 @pytest.fixture(scope="module")

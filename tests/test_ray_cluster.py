@@ -4,20 +4,17 @@
 import json
 
 import pytest
+import ray
 from click.testing import CliRunner
+from ray.cluster_utils import Cluster  # noqa: E402
 
 from slearn.cli import main
+from slearn.jobs.cluster import ClusterError, ray_session  # noqa: E402
+from slearn.jobs.distributed import RayReader  # noqa: E402
 from slearn.jobs.learn import learn_files
 from slearn.recorders.arm import ArmConfig, arm_spec, record_arm
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-
-ray = pytest.importorskip("ray")
-
-from ray.cluster_utils import Cluster  # noqa: E402
-
-from slearn.jobs.cluster import ClusterError, ray_session  # noqa: E402
-from slearn.jobs.distributed import RayReader  # noqa: E402
 
 
 @pytest.fixture(scope="module")

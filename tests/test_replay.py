@@ -15,6 +15,7 @@ from fixtures import POINTER_TOML
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.io import library_file as storage
 from slearn.io.spec import pointer_spec
 from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.recorders.record_pointer import record_pointer
@@ -330,7 +331,6 @@ def test_plot_is_a_png_and_report_is_one_self_contained_html_file(tmp_path):
 
 # --- logs on disk ---------------------------------------------------------------------------------
 
-storage = pytest.importorskip("slearn.storage")
 
 
 @pytest.fixture(scope="module")

@@ -11,12 +11,11 @@ from fixtures import POINTER_TOML
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED, main
 from slearn.core.library import PatternLibrary
 from slearn.core.vocabulary import Vocabulary
+from slearn.io import library_file as storage
 from slearn.io.serialize import read_episodes
 from slearn.io.spec import pointer_spec
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
-
-storage = pytest.importorskip("slearn.storage")
 
 
 @pytest.fixture(scope="module")

@@ -20,15 +20,13 @@ from click.testing import CliRunner
 from fixtures import SHARED_MCAP
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from slearn.cli import main
 from slearn.io.spec import load_spec
 from slearn.recorders.arm import ArmConfig, simulate_arm
 from slearn.recorders.pointer import BIN_DEG, PointerConfig, simulate
 from slearn.recorders.pointer_oracle import oracle_correct
-
-rosbags = pytest.importorskip("rosbags")
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 PR2_LOG = (SHARED_MCAP / "robot" / "ros2_cdr"
            / "pr2_pr1012_sensors_ros2.mcap")

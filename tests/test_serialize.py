@@ -40,8 +40,8 @@ def test_pointer_log_gives_the_pointer_episode(tmp_path):
 
 
 def test_pointer_recorder_round_trip(tmp_path):
-    record = pytest.importorskip("slearn.recorders.record_pointer")
-    pointer = pytest.importorskip("slearn.recorders.pointer")
+    from slearn.recorders import pointer
+    from slearn.recorders import record_pointer as record
     config = pointer.PointerConfig("noise" if "noise" in pointer.CONDITIONS else "simple",
                                    trials=500, seed=3)
     record.record_pointer(config, tmp_path / "p.mcap")
