@@ -21,7 +21,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from slearn.control import AGENTS, ControlConfig, run_control
+from slearn.control.closed_loop import AGENTS, ControlConfig, run_control
 
 CONDITIONS = ("simple", "hardstop", "error", "delay", "reversal", "scramble")
 NAMES = {"slearn": "slearn", "count-model": "count model", "goal-q": "goal-cond. Q",

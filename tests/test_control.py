@@ -8,13 +8,13 @@ from click.testing import CliRunner
 from mcap.reader import make_reader
 
 from slearn.cli import main
-from slearn.agents import CountModelAgent, GoalQAgent, SlearnAgent, explore
-from slearn.control import ControlConfig, goal_sequence, run_control
-from slearn.envs import PointerEnv, parse_env_args
-from slearn.errors import InputError
+from slearn.control.agents import CountModelAgent, GoalQAgent, SlearnAgent, explore
+from slearn.control.closed_loop import ControlConfig, goal_sequence, run_control
+from slearn.control.envs import PointerEnv, parse_env_args
 from slearn.core.library import PatternLibrary
-from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 from slearn.core.stream import Episode
+from slearn.errors import InputError
+from slearn.recorders.pointer import PointerConfig, pointer_vocabulary, simulate
 
 
 @pytest.mark.parametrize("condition", ["simple", "hardstop", "error", "delay"])
@@ -102,7 +102,7 @@ def test_control_recovers_right_after_the_switch(condition):
 def test_72_bin_hardstop_reaches_labels_exploration_never_saw():
     config = ControlConfig("pointer:hardstop", (("bins", 72),), goals=30, seed=0, trials=3_000,
                            agents=("slearn",))
-    from slearn.control import exploration
+    from slearn.control.closed_loop import exploration
 
     seen = set(exploration(config).observations.tolist())
     result = run_control(config)

@@ -6,8 +6,8 @@ import pytest
 from click.testing import CliRunner
 
 from slearn.cli import main
-from slearn.control import ControlConfig, goal_candidates, run_control
-from slearn.envs import GymnasiumEnv, make_env
+from slearn.control.closed_loop import ControlConfig, goal_candidates, run_control
+from slearn.control.envs import GymnasiumEnv, make_env
 from slearn.errors import InputError
 
 gymnasium = pytest.importorskip("gymnasium")

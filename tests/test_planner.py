@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from test_literal import L, R, pointer_episode
 
+from slearn.control.planner import Planner, PlannerSettings, distribution
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION, OBSERVATION
-from slearn.planner import Planner, PlannerSettings, distribution
 from slearn.recorders.pointer import PointerConfig, simulate
 
 POS = 10  # position k is symbol k + 10 (see test_library.pointer_episode)

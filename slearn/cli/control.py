@@ -1,5 +1,5 @@
 """``slearn control``: steer a discrete system to goals, slearn next to honest peers
-(see :mod:`slearn.control`)."""
+(see :mod:`slearn.control.closed_loop`)."""
 
 from __future__ import annotations
 
@@ -9,12 +9,21 @@ from pathlib import Path
 
 import click
 
-from slearn.control import (AGENTS, DEFAULT_BUDGET, EXTRA_AGENTS, OFFLINE_TRIALS, ControlConfig,
-                            ControlResult, Summary, run_control, write_control_mcap)
 from slearn.cli.limits import MAX_GOALS, MAX_STEPS, MAX_TRIALS, FiniteFloat
-from slearn.envs import parse_env_args
+from slearn.control.closed_loop import (
+    AGENTS,
+    DEFAULT_BUDGET,
+    EXTRA_AGENTS,
+    OFFLINE_TRIALS,
+    ControlConfig,
+    ControlResult,
+    Summary,
+    run_control,
+    write_control_mcap,
+)
+from slearn.control.envs import parse_env_args
+from slearn.control.planner import PlannerSettings
 from slearn.io.files import check_output
-from slearn.planner import PlannerSettings
 from slearn.recorders.pointer import CONDITIONS
 
 

@@ -2,7 +2,7 @@
 
 A :class:`DiscreteEnv` has a fixed set of actions ``0..n_actions-1`` and reports one
 discrete observation (an ``int``) after every action; there is no reward, because goals
-are observations chosen by the caller. The control loop (:mod:`slearn.control`) only
+are observations chosen by the caller. The control loop (:mod:`slearn.control.closed_loop`) only
 calls :meth:`~DiscreteEnv.step` and reads :attr:`~DiscreteEnv.observation`.
 
 Episodes that end: a Gymnasium environment whose episode terminated (a hole of the
@@ -21,8 +21,16 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from slearn.errors import InputError
-from slearn.recorders.pointer import (COMMAND_CHANNEL, COMMAND_NAMES, CONDITIONS, FULL_TURN_DEG,
-                                      MAX_ERROR_DEG, N_BINS, POSITION_CHANNEL, R)
+from slearn.recorders.pointer import (
+    COMMAND_CHANNEL,
+    COMMAND_NAMES,
+    CONDITIONS,
+    FULL_TURN_DEG,
+    MAX_ERROR_DEG,
+    N_BINS,
+    POSITION_CHANNEL,
+    R,
+)
 
 MAX_BINS = 720
 
@@ -319,7 +327,8 @@ def make_env(spec: str, kwargs: dict | None = None, seed: int = 0):
     args = dict(kwargs or {})
     known = {"error_deg", "delay_prob", "bins", "start_bin"}
     if set(args) - known:
-        raise InputError(f"pointer arguments are {', '.join(sorted(known))}, not {', '.join(sorted(set(args) - known))}")
+        unknown = ", ".join(sorted(set(args) - known))
+        raise InputError(f"pointer arguments are {', '.join(sorted(known))}, not {unknown}")
     return PointerEnv(name, seed, **args)
 
 

@@ -43,7 +43,7 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Iterable, Sequence, cast
 
 import numpy as np
 
@@ -53,6 +53,7 @@ from slearn.core.hashtrie import child, child_or_add
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Step
 from slearn.core.tokens import ACTION, OBSERVATION
+from slearn.core.views import ViewState
 
 _NO_STATE = -1
 
@@ -204,7 +205,7 @@ class Planner:
 
     def _root(self) -> int:
         self.library.prepare()
-        return int(self.library.streams.root[self.view])
+        return int(cast(ViewState, self.library.streams).root[self.view])  # prepared above
 
     def _search_graph(self, index, start, action_tokens, goal_mask) -> _Graph:
         s = self.settings

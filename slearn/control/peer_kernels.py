@@ -1,4 +1,4 @@
-"""Compiled kernels of the control peers (:mod:`slearn.agents`)."""
+"""Compiled kernels of the control peers (:mod:`slearn.control.agents`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Closed-loop goal seeking on any discrete system, slearn next to honest peers.
 
-A run explores its environment (:mod:`slearn.envs`: the simulated pointer, or a
+A run explores its environment (:mod:`slearn.control.envs`: the simulated pointer, or a
 Gymnasium environment with discrete spaces) with ``trials`` random actions, then drives
-each agent (:mod:`slearn.agents`) toward the same sequence of goal observations, in its
+each agent (:mod:`slearn.control.agents`) toward the same sequence of goal observations, in its
 own copy of the environment (same seed): before each step the agent chooses an action,
 the environment steps, and the agent learns the step. Every agent starts from the same
 exploration log: slearn learns it into a pattern library (or starts from a given one,
@@ -27,16 +27,24 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from slearn import __version__
-from slearn.agents import (CountModelAgent, GoalQAgent, SingleGoalQAgent, SlearnAgent, Transitions,
-                           explore, explore_directed, true_model_agent)
-from slearn.envs import PointerEnv, make_env
-from slearn.errors import InputError
+from slearn.control.agents import (
+    CountModelAgent,
+    GoalQAgent,
+    SingleGoalQAgent,
+    SlearnAgent,
+    Transitions,
+    explore,
+    explore_directed,
+    true_model_agent,
+)
+from slearn.control.envs import PointerEnv, make_env
+from slearn.control.planner import PlannerSettings
 from slearn.core.library import PatternLibrary
-from slearn.planner import PlannerSettings
+from slearn.core.vocabulary import Vocabulary
+from slearn.errors import InputError
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import pointer_vocabulary
 from slearn.recorders.record_pointer import COMMAND_SCHEMA, POSITION_SCHEMA, TRIAL_NS
-from slearn.core.vocabulary import Vocabulary
 
 SWITCHING = ("reversal", "scramble")
 OFFLINE_TRIALS = 10_000
@@ -161,9 +169,9 @@ class Summary:
     def of(cls, outcomes: list[GoalOutcome]) -> "Summary":
         real = [o for o in outcomes if o.shortest != 0 and o.steps + (not o.reached) > 0]
         reached = [o for o in real if o.reached]
-        n = len(real) or math.nan  # no goal to reach: rates are undefined
-        sized = [o for o in reached if o.shortest]
-        ratio = float(np.mean([o.steps / o.shortest for o in sized])) if sized else math.nan
+        n: float = len(real) or math.nan  # no goal to reach: rates are undefined
+        sized = [(o.steps, o.shortest) for o in reached if o.shortest]
+        ratio = float(np.mean([steps / shortest for steps, shortest in sized])) if sized else math.nan
         return cls(len(real), len(reached) / n, sum(o.within(1.05) for o in real) / n,
                    sum(o.within(2) for o in real) / n, sum(o.within(3) for o in real) / n, ratio,
                    float(np.mean([o.steps for o in reached])) if reached else math.nan,
@@ -289,7 +297,8 @@ def goal_sequence(config: ControlConfig, candidates: list[int], first: int) -> l
         raise InputError(f"{config.env}: fewer than two goal observations to choose from; "
                          "explore longer (--trials) or give --goal")
     rng = _rng(config, 4)
-    goals, last = [], first
+    goals: list[tuple[int, ...]] = []
+    last = first
     for _ in range(config.goals):
         pick = int(rng.integers(len(candidates) - (last in candidates)))
         others = [c for c in candidates if c != last]

@@ -1,4 +1,4 @@
-"""Agents that steer a discrete system (:mod:`slearn.envs`) to goal observations.
+"""Agents that steer a discrete system (:mod:`slearn.control.envs`) to goal observations.
 
 Every agent has the same two calls, usable from any loop::
 
@@ -7,7 +7,7 @@ Every agent has the same two calls, usable from any loop::
     agent.observe(observation)              # learn the step just taken
 
 * :class:`SlearnAgent`: S-learning. A :class:`~slearn.core.library.PatternLibrary` learns every
-  step; the :class:`~slearn.planner.Planner` searches it before every step.
+  step; the :class:`~slearn.control.planner.Planner` searches it before every step.
 * Honest peers, trained on the same exploration transitions:
 
   - :class:`GoalQAgent`: goal-conditioned tabular Q-learning (Kaelbling 1993). Q-learning
@@ -32,12 +32,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slearn.control.peer_kernels import replay_for_goal as _replay
+from slearn.control.peer_kernels import value_iteration as _value_iteration
+from slearn.control.planner import Planner, PlannerSettings
+from slearn.control.qlearning import QLearner
 from slearn.core.library import PatternLibrary
-from slearn.planner import Planner, PlannerSettings
-from slearn.qlearning import QLearner
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
-from slearn.peer_kernels import replay_for_goal as _replay, value_iteration as _value_iteration
 
 Goal = tuple[int, ...]
 
@@ -239,8 +240,8 @@ class CountModelAgent:
         self.discount = discount
         self.reset_after = reset_after
         self.learning = learn
-        self._support = None
-        self._totals = None
+        self._support: tuple[np.ndarray, np.ndarray] | None = None  # sparse rows, built on demand
+        self._totals = np.zeros(0)
         self.state = 0
         self.action = 0
         self.resets = 0
@@ -251,7 +252,7 @@ class CountModelAgent:
         flat = self.counts.reshape(n_s * n_a, n_s)
         if self._support is None:
             rows, cols = np.nonzero(flat)
-            self._support = [cols.astype(np.int64), np.searchsorted(rows, np.arange(n_s * n_a + 1))]
+            self._support = (cols.astype(np.int64), np.searchsorted(rows, np.arange(n_s * n_a + 1)))
             self._totals = flat.sum(axis=1)
         cols, offsets = self._support
         rows = np.repeat(np.arange(n_s * n_a), np.diff(offsets))
@@ -288,7 +289,7 @@ class CountModelAgent:
             if row[s2] == 0:
                 cols = np.insert(cols, offsets[sa + 1], s2)
                 offsets[sa + 1:] += 1
-                self._support[0] = cols
+                self._support = (cols, offsets)
             self._totals[sa] += 1.0
         row[s2] += 1.0
 

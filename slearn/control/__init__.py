@@ -1,0 +1,1 @@
+"""Control: the planner over the pattern library, environments, baselines."""
