@@ -579,7 +579,13 @@ def _resolve_channels(layout: _Layout) -> None:
 
 # --- pass 2: blocks and merge ---------------------------------------------------------
 
-class _TooLarge(ValueError):
+class CorruptData(Exception):
+    """A block's bytes are damaged. Internal to the log readers (this module and
+    :mod:`slearn.io.ros1_salvage`), which skip the block and say why; never raised to
+    callers, and distinct from ``ValueError`` so that a bug is not mistaken for damage."""
+
+
+class _TooLarge(CorruptData):
     """A block would not fit in the memory limit (see :func:`max_chunk_bytes_setting`)."""
 
 
@@ -589,7 +595,7 @@ def decompress_exactly(compression: str, data: bytes, size: int) -> bytes:
     ``compression`` is MCAP's (``""``, ``zstd``, ``lz4``), or ``bz2`` (ROS 1 bag chunks).
 
     Raises:
-        ValueError: the data holds more or fewer bytes than declared, or does not decompress.
+        CorruptData: the data holds more or fewer bytes than declared, or does not decompress.
     """
     if compression == "":
         out = data
@@ -602,9 +608,9 @@ def decompress_exactly(compression: str, data: bytes, size: int) -> bytes:
 
         out = _at_most(bz2.BZ2Decompressor(), data, size, "bz2")
     else:
-        raise ValueError(f"unsupported chunk compression {compression!r}")
+        raise CorruptData(f"unsupported chunk compression {compression!r}")
     if len(out) != size:
-        raise ValueError(f"chunk records are {len(out)} bytes, the chunk declares {size}")
+        raise CorruptData(f"chunk records are {len(out)} bytes, the chunk declares {size}")
     return out
 
 
@@ -613,7 +619,7 @@ def _zstd(data: bytes, size: int) -> bytes:
 
     declared = zstandard.frame_content_size(data)
     if declared not in (-1, size):  # -1: the frame does not say
-        raise ValueError(f"zstd frame holds {declared} bytes, the chunk declares {size}")
+        raise CorruptData(f"zstd frame holds {declared} bytes, the chunk declares {size}")
     # With a content size in the frame, zstandard allocates exactly that; without one, at
     # most max_output_size, and more output is an error: either way never above ``size``.
     return zstandard.ZstdDecompressor().decompress(data, max_output_size=max(size, 1))
@@ -624,7 +630,7 @@ def _lz4(data: bytes, size: int) -> bytes:
 
     declared = lz4.frame.get_frame_info(data)["content_size"]
     if declared not in (0, size):  # 0: the frame does not say
-        raise ValueError(f"lz4 frame holds {declared} bytes, the chunk declares {size}")
+        raise CorruptData(f"lz4 frame holds {declared} bytes, the chunk declares {size}")
     return _at_most(lz4.frame.LZ4FrameDecompressor(), data, size, "lz4")
 
 
@@ -632,12 +638,12 @@ def _at_most(decompressor, data: bytes, size: int, what: str) -> bytes:
     """Run a streaming ``decompressor`` on ``data`` for at most ``size`` bytes of output."""
     out = decompressor.decompress(data, max_length=size + 1)  # one byte more tells "too much"
     if len(out) == size and not decompressor.eof:
-        raise ValueError(f"{what} data holds more than the {size} bytes the chunk declares")
+        raise CorruptData(f"{what} data holds more than the {size} bytes the chunk declares")
     return out
 
 
 def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
-    """Read, decompress and check one chunk; raise ``ValueError`` when it is unreadable.
+    """Read, decompress and check one chunk; raise ``CorruptData`` when it is unreadable.
 
     ``room`` is the memory still free under the limit: a chunk that declares more is not
     decompressed (:class:`_TooLarge`).
@@ -649,19 +655,19 @@ def _chunk_records(f: BinaryIO, block: _Block, room: int) -> bytes:
         compression, pos = _read_str(buf, _CHUNK_TIMES.size)
         (n,) = _U64.unpack_from(buf, pos)
     except struct.error as err:
-        raise ValueError(f"chunk header unreadable: {err}") from err
+        raise CorruptData(f"chunk header unreadable: {err}") from err
     if pos + 8 + n > len(buf):
-        raise ValueError("chunk records run past the chunk")
+        raise CorruptData("chunk records run past the chunk")
     if uncompressed_size > room:
         raise _TooLarge(f"chunk declares {uncompressed_size:,} bytes uncompressed")
     try:
         data = decompress_exactly(compression, buf[pos + 8:pos + 8 + n], uncompressed_size)
-    except ValueError:
+    except CorruptData:
         raise  # a size mismatch, said as it is
     except Exception as err:  # zstd/lz4 raise their own error types
-        raise ValueError(f"chunk cannot be decompressed: {err}") from err
+        raise CorruptData(f"chunk cannot be decompressed: {err}") from err
     if crc and zlib.crc32(data) != crc:
-        raise ValueError("chunk CRC mismatch")
+        raise CorruptData("chunk CRC mismatch")
     return data
 
 
@@ -672,7 +678,7 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
     ``buf[start:end]`` being the payload; schemas and channels are registered.
 
     Raises:
-        ValueError: a record is cut or made of zero bytes (a damaged block).
+        CorruptData: a record is cut or made of zero bytes (a damaged block).
         _TooLarge: holding the messages would take more than ``room`` bytes.
     """
     if len(buf) >= _SCAN_BYTES:
@@ -687,14 +693,14 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
         op, length = head(buf, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > end:
-            raise ValueError(f"record at +{pos} runs past the end of its block")
+            raise CorruptData(f"record at +{pos} runs past the end of its block")
         n_records += 1
         if n_records % _BLOCK_MESSAGES == 0:  # every record counts: floods of tiny ones stop early
             check_room(end, n_records, room)
         if op == _OP_MESSAGE:
             cid, seq, log_time, publish_time = message(buf, body)
             if log_time > _LAST_TIME_NS:  # times are int64 downstream; no clock reads 2262 or later
-                raise ValueError(f"message at +{pos} has a log time of {log_time} ns, past the year 2262")
+                raise CorruptData(f"message at +{pos} has a log time of {log_time} ns, past the year 2262")
             channel = channels.get(cid)
             if wanted is None or channel is None or channel.topic in wanted:
                 out.extend((log_time, publish_time, seq, cid, min(body + 22, nxt), nxt))
@@ -702,7 +708,7 @@ def _parse_messages(buf: bytes, layout: _Layout, wanted: frozenset[str] | None,
             _register_record(op, buf, body, nxt, layout)
             _resolve_channels(layout)
         elif op == _OP_INVALID:  # zero bytes are never walked record by record
-            raise ValueError(f"zero bytes instead of a record at +{pos}")
+            raise CorruptData(f"zero bytes instead of a record at +{pos}")
         pos = nxt
     check_room(end, len(out) // _COLUMNS, room)
     rows = np.frombuffer(out, np.uint64).reshape(-1, _COLUMNS)
@@ -760,7 +766,7 @@ def check_room(n_bytes: int, n_records: int, room: int) -> None:
     bytes of memory (its bytes plus an index entry per record).
 
     Raises:
-        ValueError: it would not fit (the block is skipped, like a damaged one).
+        _TooLarge: it would not fit (the block is skipped, like a damaged one).
     """
     if block_cost(n_bytes, n_records) > room:
         raise _TooLarge(f"{n_bytes:,} bytes of records with at least {n_records:,} records")
@@ -858,7 +864,7 @@ class _Merge:
             self._skip(block, f"{err}: over the {self.limit / 2**20:g} MiB of chunk data read at "
                               f"once{held}; raise {MAX_CHUNK_ENV} to read it")
             rows, buf = _NO_ROWS, b""
-        except (ValueError, struct.error) as err:
+        except (CorruptData, struct.error) as err:  # struct.error: a record cut short
             self._skip(block, str(err))
             rows, buf = _NO_ROWS, b""
         if count:

@@ -30,6 +30,7 @@ from slearn.io.mcap_read import (
     MAX_CHUNK_ENV,
     AttachmentInfo,
     ChannelInfo,
+    CorruptData,
     RawMessage,
     ReadReport,
     SchemaInfo,
@@ -76,7 +77,7 @@ def _records(buf: bytes, limit: int) -> Iterator[tuple[dict[str, bytes], bytes]]
     """``(header fields, data)`` of the records in a decompressed chunk.
 
     Raises:
-        ValueError: a record is cut or has no header, or the records would not fit in
+        CorruptData: a record is cut or has no header, or the records would not fit in
             ``limit`` bytes of memory (:func:`~slearn.io.mcap_read.check_room`).
     """
     pos, n_records = 0, 0
@@ -86,12 +87,12 @@ def _records(buf: bytes, limit: int) -> Iterator[tuple[dict[str, bytes], bytes]]
             check_room(len(buf), n_records, limit)
         (n,) = _U32.unpack_from(buf, pos)
         if n < _MIN_HEADER:
-            raise ValueError(f"a record header of {n} bytes at +{pos} (zero bytes?)")
+            raise CorruptData(f"a record header of {n} bytes at +{pos} (zero bytes?)")
         header = _fields(buf[pos + 4:pos + 4 + n])
         (m,) = _U32.unpack_from(buf, pos + 4 + n)
         start = pos + 8 + n
         if start + m > len(buf):
-            raise ValueError("a record runs past the end of its chunk")
+            raise CorruptData("a record runs past the end of its chunk")
         yield header, buf[start:start + m]
         pos = start + m
 
@@ -100,19 +101,19 @@ def _decompress(chunk: _Chunk, data: bytes, limit: int) -> bytes:
     """The chunk's records: exactly the bytes its header declares, refused above ``limit``.
 
     Raises:
-        ValueError: over the limit, another size than declared, or not decompressible.
+        CorruptData: over the limit, another size than declared, or not decompressible.
     """
     if chunk.size > limit:
-        raise ValueError(f"chunk declares {chunk.size:,} bytes uncompressed, over the "
+        raise CorruptData(f"chunk declares {chunk.size:,} bytes uncompressed, over the "
                          f"{limit / 2**20:.1f} MiB it may use; raise {MAX_CHUNK_ENV} to read it")
     if chunk.compression not in _COMPRESSION:
-        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+        raise CorruptData(f"unknown chunk compression {chunk.compression!r}")
     try:
         return decompress_exactly(_COMPRESSION[chunk.compression], data, chunk.size)
-    except ValueError:
+    except CorruptData:
         raise
     except Exception as err:  # bz2 and lz4 raise their own error types
-        raise ValueError(f"chunk cannot be decompressed: {err}") from err
+        raise CorruptData(f"chunk cannot be decompressed: {err}") from err
 
 
 def chunk_decompressor(f: BinaryIO, offset: int, limit: int) -> Callable[[bytes], bytes]:
@@ -133,7 +134,7 @@ def chunk_decompressor(f: BinaryIO, offset: int, limit: int) -> Callable[[bytes]
 
 
 def _refuse(reason: str, data: bytes) -> bytes:
-    raise ValueError(reason)
+    raise CorruptData(reason)
 
 
 def _time_ns(field: bytes) -> int:
@@ -226,7 +227,7 @@ class Ros1Salvage:
                            _U32.unpack(header["size"][:4])[0], 0, 0)
             times = [_time_ns(h["time"]) for h, _ in self._chunk_records(chunk, self.limit)
                      if h.get("op", b"\0")[0] == _OP_MESSAGE]
-        except (ValueError, OSError, struct.error, KeyError) as err:
+        except (CorruptData, OSError, struct.error, KeyError) as err:
             self._skip(offset, f"unreadable chunk: {err}")
             return
         if times:
@@ -303,7 +304,7 @@ class Ros1Salvage:
                 channel = self._channels.get(conn)
                 if channel is not None and (wanted is None or channel.topic in wanted):
                     out.append((_time_ns(header["time"]), conn, data))
-        except ValueError as err:
+        except CorruptData as err:
             self._skip(chunk.offset, f"chunk skipped: {err} (with {(self.limit - room) / 2**20:.1f} "
                                      f"MiB held by chunks overlapping in time)")
             return [], 0
