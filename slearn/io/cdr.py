@@ -24,7 +24,7 @@ from typing import Any, Callable, cast
 
 import numpy as np
 
-from slearn.io.decode import _MSG_SEPARATOR, _ros2_type_name, parse_field_path
+from slearn.io.decode import parse_field_path, ros2_message_types
 
 _SIZES = {"bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2,
           "int32": 4, "uint32": 4, "float32": 4, "int64": 8, "uint64": 8, "float64": 8}
@@ -47,16 +47,7 @@ def _types(channel) -> tuple[str, dict]:
 @lru_cache(maxsize=64)
 def _parsed(schema_name: str, data: bytes) -> tuple[str, dict]:
     """The message types of a schema (parsed once per schema; never changed after)."""
-    from rosbags.typesys import get_types_from_msg
-
-    parts = _MSG_SEPARATOR.split(data.decode("utf-8"))
-    name = _ros2_type_name(schema_name)
-    types = dict(get_types_from_msg(parts[0], name))
-    for part in parts[1:]:
-        head, _, body = part.strip("\n").partition("\n")
-        if not head.startswith("MSG:"):
-            raise ValueError(f"unexpected schema section {head!r}")
-        types.update(get_types_from_msg(body, _ros2_type_name(head[4:])))
+    name, types = ros2_message_types(schema_name, data)
     return name, {key: list(fields) for key, (_, fields) in types.items()}
 
 

@@ -75,19 +75,32 @@ def _ros2_type_name(name: str) -> str:
     return f"{parts[0]}/msg/{parts[-1]}" if len(parts) == 2 else name.strip()
 
 
-def _rosbags_cdr_decoder(channel: ChannelInfo) -> Decoder:
-    """A ROS 2 CDR decoder from ``rosbags`` (1.5-2x faster than mcap-ros2-support)."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+def ros2_message_types(schema_name: str, data: bytes) -> tuple[str, dict]:
+    """The full type name of a ROS 2 ``ros2msg`` schema and the rosbags definitions of its
+    message type and every type it embeds.
 
-    schema = cast(SchemaInfo, channel.schema)  # a CDR channel always has its schema
-    parts = _MSG_SEPARATOR.split(schema.data.decode("utf-8"))
-    name = _ros2_type_name(schema.name)
+    Raises:
+        ValueError: a section of the schema is not a ``MSG:`` definition.
+    """
+    from rosbags.typesys import get_types_from_msg
+
+    parts = _MSG_SEPARATOR.split(data.decode("utf-8"))
+    name = _ros2_type_name(schema_name)
     types = dict(get_types_from_msg(parts[0], name))
     for part in parts[1:]:
         head, _, body = part.strip("\n").partition("\n")
         if not head.startswith("MSG:"):
             raise ValueError(f"unexpected schema section {head!r}")
         types.update(get_types_from_msg(body, _ros2_type_name(head[4:])))
+    return name, types
+
+
+def _rosbags_cdr_decoder(channel: ChannelInfo) -> Decoder:
+    """A ROS 2 CDR decoder from ``rosbags`` (1.5-2x faster than mcap-ros2-support)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    schema = cast(SchemaInfo, channel.schema)  # a CDR channel always has its schema
+    name, types = ros2_message_types(schema.name, schema.data)
     store = get_typestore(Stores.EMPTY)  # one store per channel: type versions cannot clash
     store.register(types)
     deserialize = store.deserialize_cdr

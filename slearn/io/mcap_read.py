@@ -241,7 +241,23 @@ class AttachmentInfo:
     data: bytes
 
 
-class McapLog:
+class _OpenLog:
+    """A log reader holding its file open: a context manager that closes it."""
+
+    _file: BinaryIO
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the file."""
+        self._file.close()
+
+
+class McapLog(_OpenLog):
     """An MCAP file opened for streaming; use as a context manager.
 
     Opening scans the record headers (see the module docstring); ``profile``,
@@ -265,16 +281,6 @@ class McapLog:
         except BaseException:
             self._file.close()
             raise
-
-    def __enter__(self) -> "McapLog":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Close the file."""
-        self._file.close()
 
     @property
     def profile(self) -> str:

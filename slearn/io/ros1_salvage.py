@@ -34,6 +34,7 @@ from slearn.io.mcap_read import (
     RawMessage,
     ReadReport,
     SchemaInfo,
+    _OpenLog,
     block_cost,
     check_room,
     decompress_exactly,
@@ -142,7 +143,7 @@ def _time_ns(field: bytes) -> int:
     return sec * 1_000_000_000 + nsec
 
 
-class Ros1Salvage:
+class Ros1Salvage(_OpenLog):
     """A ROS 1 bag read linearly (see the module docstring); the interface of an MCAP log."""
 
     profile = "ros1"
@@ -163,16 +164,6 @@ class Ros1Salvage:
         except BaseException:
             self._file.close()
             raise
-
-    def __enter__(self) -> "Ros1Salvage":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Close the file."""
-        self._file.close()
 
     @property
     def channels(self) -> dict[int, ChannelInfo]:

@@ -181,6 +181,18 @@ def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
                 loaded.provenance)
 
 
+def checked_inputs(paths: Sequence[str | os.PathLike], output: str | os.PathLike, overwrite: bool,
+                   resume: str | os.PathLike | None, scoring: str | None) -> list[str]:
+    """The logs as strings, after the cheap checks every learn job makes before reading:
+    some logs, an output that may be written and is none of the inputs, a known scoring."""
+    logs = [os.fspath(p) for p in paths]
+    if not logs:
+        raise InputError("no logs to learn from")
+    check_output(output, overwrite, inputs=logs + ([os.fspath(resume)] if resume else []))
+    _check_scoring(scoring)
+    return logs
+
+
 def _check_scoring(scoring: str | None) -> None:
     if scoring is not None and scoring not in SCORING_RULES:
         raise InputError(f"scoring must be one of {', '.join(SCORING_RULES)}, not {scoring!r}")
@@ -227,11 +239,7 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
         LibraryFormatError: ``resume`` is not a readable library.
     """
     start = time.perf_counter()
-    paths = [os.fspath(p) for p in paths]
-    if not paths:
-        raise InputError("no logs to learn from")
-    check_output(output, overwrite, inputs=paths + ([os.fspath(resume)] if resume else []))
-    _check_scoring(scoring)
+    paths = checked_inputs(paths, output, overwrite, resume, scoring)
     source_date_epoch()
     job = (_resumed_job(os.fspath(resume), spec, max_length, max_patterns, scoring) if resume
            else _new_job(paths, spec, max_length, max_patterns, scoring, progress, window,

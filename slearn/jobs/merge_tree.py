@@ -39,7 +39,6 @@ from slearn.core.library import PatternLibrary
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError
 from slearn.io.bags import log_record
-from slearn.io.files import check_output
 from slearn.io.library_file import save_library
 from slearn.io.mcap_read import ReadReport
 from slearn.io.serialize import prepare_vocabulary, read_episodes
@@ -55,7 +54,7 @@ from slearn.jobs.cluster import (
     loaded_bytes,
     ray_session,
 )
-from slearn.jobs.learn import LearnResult, _check_scoring, _new_job, _resumed_job, build_provenance, source_date_epoch
+from slearn.jobs.learn import LearnResult, _new_job, _resumed_job, build_provenance, checked_inputs, source_date_epoch
 from slearn.jobs.merge import merge_libraries
 
 # A partial library's provenance: the job writes the real one (every input, in order).
@@ -81,11 +80,7 @@ def learn_on_ray(paths: Sequence[str | os.PathLike], output: str | os.PathLike, 
         ClusterError: the cluster cannot be reached, or a worker died too often.
     """
     start = time.perf_counter()
-    paths = [os.fspath(p) for p in paths]
-    if not paths:
-        raise InputError("no logs to learn from")
-    check_output(output, overwrite, inputs=paths + ([os.fspath(resume)] if resume else []))
-    _check_scoring(scoring)
+    paths = checked_inputs(paths, output, overwrite, resume, scoring)
     _refuse_order_dependent(scoring, max_patterns)
     source_date_epoch()
     job = (_resumed_job(os.fspath(resume), spec, max_length, None, scoring) if resume
