@@ -7,15 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import ROS2_HEADER_TYPES, SHARED_MCAP
 
 from slearn.io import cdr
 from slearn.io.decode import MISSING, DecoderCache, iter_scalar_fields, parse_field_path
 from slearn.io.mcap_read import ChannelInfo, McapLog, SchemaInfo
 
-SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
-               if (p / "shared" / "data" / "mcap").is_dir()), None)
-LOGS = sorted(str(p.relative_to(SHARED)) for p in SHARED.rglob("*.mcap")
-              if p.parts[-2] != "derived" or "truncated_500" in p.name) if SHARED else []
+LOGS = sorted(str(p.relative_to(SHARED_MCAP)) for p in SHARED_MCAP.rglob("*.mcap")
+              if p.parts[-2] != "derived" or "truncated_500" in p.name)
 PER_CHANNEL = 40  # messages compared per channel (the derived logs are copies of the PR2 log)
 
 
@@ -80,28 +79,20 @@ def _compare_log(path: Path) -> int:
     return compared
 
 
-@pytest.mark.skipif(not LOGS, reason="../shared/data/mcap is not available")
+@pytest.mark.shared
 def test_plans_read_what_rosbags_decodes_on_every_shared_log():
-    compared = {rel: _compare_log(SHARED / rel) for rel in LOGS}
+    compared = {rel: _compare_log(SHARED_MCAP / rel) for rel in LOGS}
     assert compared["robot/ros2_cdr/pr2_pr1012_sensors_ros2.mcap"] >= 160
     assert sum(compared.values()) > 1000
 
 
-JOINTS_SCHEMA = b"""std_msgs/Header header
+JOINTS_SCHEMA = ("""std_msgs/Header header
 string[] name
 float64[] position
 float64[] velocity
 bool ok
 uint8[3] raw
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+""" + ROS2_HEADER_TYPES).encode()
 
 
 def _channel() -> ChannelInfo:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from fixtures import SHARED_MCAP
+from fixtures import ROS2_HEADER_TYPES, SHARED_MCAP
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from slearn.errors import DecodeError, FieldPathError
@@ -18,15 +18,7 @@ string[] name
 float64[] position
 float64[] velocity
 float64[] effort
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+""" + ROS2_HEADER_TYPES
 
 JOINTS = {"header": {"stamp": {"sec": 1, "nanosec": 2}, "frame_id": "base"},
           "name": ["a_joint", "b_joint", "c_joint"], "position": [0.5, -1.25, 3.0],

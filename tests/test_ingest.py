@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.writer import CompressionType, Writer
+from fixtures import SHARED_MCAP, write_log
+from mcap.writer import CompressionType
 
 import slearn.io.ingest as ingest
 import slearn.jobs.learn as learn_module
@@ -19,23 +19,10 @@ from slearn.io.slicing import TimeBound, TimeSlice
 from slearn.io.spec import Spec, pointer_spec
 from slearn.jobs.learn import learn_files
 
-SHARED = next((p / "shared" / "data" / "mcap" for p in Path(__file__).resolve().parents
-               if (p / "shared" / "data" / "mcap").is_dir()), Path("/nonexistent"))
-
 
 def write_raw(path, messages, chunk_size=600):
-    """``(topic, log_time, payload bytes)`` as JSON channels (markers on /slearn/episode)."""
-    with open(path, "wb") as f:
-        writer = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        writer.start(profile="", library="tests")
-        schema = writer.register_schema("Thing", "jsonschema", b"{}")
-        channels = {}
-        for topic, log_time, data in messages:
-            if topic not in channels:
-                channels[topic] = writer.register_channel(topic, "json", schema)
-            writer.add_message(channels[topic], log_time=log_time, publish_time=log_time, data=data)
-        writer.finish()
-    return Path(path)
+    """``(topic, log_time, payload bytes)`` as JSON channels in small zstd chunks."""
+    return write_log(path, messages, chunk_size=chunk_size, compression=CompressionType.ZSTD)
 
 
 def busy_messages(n, seed, markers=False):
@@ -179,11 +166,10 @@ ROBOT_SPECS = [
 ]
 
 
+@pytest.mark.shared
 @pytest.mark.parametrize("rel, spec", ROBOT_SPECS, ids=["ros2", "ros1"])
 def test_robot_logs_stream_as_they_read(rel, spec):
-    path = SHARED / rel
-    if not path.exists():
-        pytest.skip(f"../shared/data/mcap/{rel} is not available")
+    path = SHARED_MCAP / rel
     spec = Spec.from_dict(spec)
     old = old_read([path], spec)
     assert old[0][0][1].n_events > 100
