@@ -229,13 +229,7 @@ def _strings(count: int | None, read: bool):
         last = seen[0]
         if last is not None and last[0] == start and raw.startswith(last[1], start):
             return (last[2] if read else _SKIPPED), last[3]
-        n = count
-        if n is None:
-            pos = (pos + 3) & -4
-            (n,) = _U32[endian](raw, pos)
-            pos += 4
-            if pos + 5 * n > len(raw):
-                raise ValueError(f"invalid sequence length {n} at offset {pos}")
+        n, pos = _length(raw, pos, endian, count, 5)  # a string takes 5 bytes at least
         values = []
         for _ in range(n):
             value, pos = _one_string(raw, pos, endian)
@@ -245,18 +239,25 @@ def _strings(count: int | None, read: bool):
     return step
 
 
+def _length(raw: bytes, pos: int, endian: str, count: int | None, item_size: int) -> tuple[int, int]:
+    """``(items, position after the length)``: ``count`` for a fixed array, else the
+    sequence's uint32 length prefix (aligned to 4), checked against the bytes left."""
+    if count is not None:
+        return count, pos
+    pos = (pos + 3) & -4
+    (n,) = _U32[endian](raw, pos)
+    pos += 4
+    if pos + item_size * n > len(raw):
+        raise ValueError(f"invalid sequence length {n} at offset {pos}")
+    return n, pos
+
+
 def _primitives(typename: str, count: int | None, read: bool):
     size = _SIZES[typename]
     dtype = np.dtype(_DTYPES.get(typename, typename))
 
     def step(raw: bytes, pos: int, endian: str):
-        n = count
-        if n is None:
-            pos = (pos + 3) & -4
-            (n,) = _U32[endian](raw, pos)
-            pos += 4
-            if pos + size * n > len(raw):
-                raise ValueError(f"invalid sequence length {n} at offset {pos}")
+        n, pos = _length(raw, pos, endian, count, size)
         if n:
             pos = (pos + size - 1) & -size
         end = pos + size * n
@@ -273,13 +274,7 @@ def _primitives(typename: str, count: int | None, read: bool):
 
 def _message_array(inner, count: int | None, align: int):
     def step(raw: bytes, pos: int, endian: str):
-        n = count
-        if n is None:
-            pos = (pos + 3) & -4
-            (n,) = _U32[endian](raw, pos)
-            pos += 4
-            if pos + n > len(raw):
-                raise ValueError(f"invalid sequence length {n} at offset {pos}")
+        n, pos = _length(raw, pos, endian, count, 1)  # each element takes a byte at least
         for _ in range(n):
             pos = (pos + align - 1) & -align
             _, pos = inner(raw, pos, endian)
