@@ -29,7 +29,6 @@ import json
 import random
 import resource
 import signal
-import struct
 import sys
 import tempfile
 import time
@@ -43,7 +42,7 @@ import lz4.frame  # noqa: E402
 import mcap_bytes as mb  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 import zstandard  # noqa: E402
-from fuzz_cases import SPEC, base_logs, json_paths, record_bounds  # noqa: E402
+from fuzz_cases import SPEC, base_logs, json_paths, mutated  # noqa: E402
 
 from slearn.core.library import PatternLibrary  # noqa: E402
 from slearn.core.vocabulary import Vocabulary  # noqa: E402
@@ -68,36 +67,24 @@ def _alarm(signum, frame):
 
 # --- mcap -----------------------------------------------------------------------------------
 
+class RandomPicks:
+    """A mutation's choices from ``random.Random``."""
+
+    def __init__(self, rng: random.Random) -> None:
+        self.rng = rng
+
+    def integer(self, lo: int, hi: int) -> int:
+        return self.rng.randint(lo, hi)
+
+    def choice(self, options):
+        return self.rng.choice(options)
+
+    def binary(self, most: int) -> bytes:
+        return self.rng.randbytes(self.rng.randint(1, most))
+
+
 def mutate(rng: random.Random, data: bytes) -> bytes:
-    data = bytearray(data)
-    for _ in range(rng.randint(1, 4)):
-        if len(data) < 9:
-            break
-        bounds = record_bounds(bytes(data)) or [(8, len(data))]
-        (a, b), (c, d) = rng.choice(bounds), rng.choice(bounds)
-        kind = rng.choice(["flip", "overwrite", "truncate", "duplicate", "remove", "swap", "length",
-                           "opcode", "zeros"])
-        if kind == "flip":
-            data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
-        elif kind == "overwrite":
-            k = rng.randrange(len(data))
-            data[k:k + 8] = rng.randbytes(rng.randint(1, 8))
-        elif kind == "truncate":
-            del data[rng.randrange(len(data)):]
-        elif kind == "duplicate":
-            data[b:b] = data[a:b]
-        elif kind == "remove":
-            del data[a:b]
-        elif kind == "swap" and b <= c:
-            data[a:d] = data[c:d] + data[b:c] + data[a:b]
-        elif kind == "length" and a + 9 <= len(data):
-            struct.pack_into("<Q", data, a + 1, rng.choice([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1,
-                                                            rng.randrange(2 ** 20)]))
-        elif kind == "opcode":
-            data[a] = rng.randrange(256)
-        elif kind == "zeros":
-            data[a:a] = bytes(rng.randint(1, 100_000))
-    return bytes(data)
+    return mutated(data, RandomPicks(rng), 100_000)
 
 
 def read_log(path: Path) -> None:

@@ -7,12 +7,11 @@ headers and footers, random spec values. Nothing may escape but a ``SlearnError`
 from __future__ import annotations
 
 import json
-import struct
 import warnings
 
 import pyarrow.parquet as pq
 import pytest
-from fuzz_cases import SPEC, base_logs, json_paths, record_bounds
+from fuzz_cases import SPEC, base_logs, json_paths, mutated
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_storage import learned, save
@@ -37,39 +36,25 @@ def fuzz(examples: int):
 BASES = base_logs()
 
 
+class DrawnPicks:
+    """A mutation's choices drawn by hypothesis (so failures shrink)."""
+
+    def __init__(self, draw) -> None:
+        self.draw = draw
+
+    def integer(self, lo: int, hi: int) -> int:
+        return self.draw(st.integers(lo, hi))
+
+    def choice(self, options):
+        return self.draw(st.sampled_from(list(options)))
+
+    def binary(self, most: int) -> bytes:
+        return self.draw(st.binary(min_size=1, max_size=most))
+
+
 @st.composite
 def mutated_log(draw) -> bytes:
-    data = bytearray(draw(st.sampled_from(BASES)))
-    for _ in range(draw(st.integers(1, 4))):
-        if len(data) < 9:
-            break
-        bounds = record_bounds(bytes(data)) or [(8, len(data))]
-        kind = draw(st.sampled_from(["flip", "overwrite", "truncate", "duplicate", "remove", "swap",
-                                     "length", "opcode", "zeros"]))
-        i, j = (draw(st.integers(0, len(bounds) - 1)) for _ in range(2))
-        (a, b), (c, d) = bounds[i], bounds[j]
-        if kind == "flip":
-            k = draw(st.integers(0, len(data) - 1))
-            data[k] ^= 1 << draw(st.integers(0, 7))
-        elif kind == "overwrite":
-            k = draw(st.integers(0, len(data) - 1))
-            data[k:k + 8] = draw(st.binary(min_size=1, max_size=8))
-        elif kind == "truncate":
-            del data[draw(st.integers(0, len(data))):]
-        elif kind == "duplicate":
-            data[b:b] = data[a:b]
-        elif kind == "remove":
-            del data[a:b]
-        elif kind == "swap" and b <= c:
-            data[a:d] = data[c:d] + data[b:c] + data[a:b]
-        elif kind == "length" and a + 9 <= len(data):
-            lengths = st.sampled_from([0, 1, 8, 2 ** 32, 2 ** 63, 2 ** 64 - 1])
-            struct.pack_into("<Q", data, a + 1, draw(lengths))
-        elif kind == "opcode":
-            data[a] = draw(st.integers(0, 255))
-        elif kind == "zeros":
-            data[a:a] = bytes(draw(st.integers(1, 5000)))
-    return bytes(data)
+    return mutated(draw(st.sampled_from(BASES)), DrawnPicks(draw), 5000)
 
 
 def only_slearn_errors(function, *args):
