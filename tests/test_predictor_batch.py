@@ -154,3 +154,34 @@ def test_a_symbol_both_action_and_observation_is_refused_without_a_vocabulary():
     library.learn(random_episode(np.random.default_rng(2), 100))
     with pytest.raises(ParameterError, match="both as an action and as an observation"):
         Predictor(library).predict([((), (100,))], (100,))
+
+
+def test_predict_through_the_step_cache_equals_the_general_path(monkeypatch):
+    """``predict`` encodes steps through a bounded cache of step codes and a kept address
+    table; its answers equal ``predict_unknown``'s (which encodes every step) while the
+    library keeps learning (new tokens, a grown tree): steps asked before their values
+    were learned and after, as tuples and as lists."""
+    import slearn.core.predictor as predictor_module
+    rng = np.random.default_rng(5)
+    library = PatternLibrary(max_length=3)
+    library.learn(random_episode(rng, 50, observations=2))
+    predictor = Predictor(library)
+
+    def same_answers(steps):
+        for e in range(3, 60):
+            history, actions = steps[e - 3:e], steps[e][0]
+            general = predictor.predict_unknown(list(history) + [(actions, ())])
+            assert predictor.predict(history, actions) == general
+            as_lists = [(list(a), list(o)) for a, o in history]
+            assert predictor.predict(as_lists, list(actions)) == general
+
+    for round_ in range(4):
+        episode = random_episode(rng, 300, observations=3 + 2 * round_)  # new values each round
+        same_answers(episode.steps())  # values not learned yet
+        library.learn(episode)
+        same_answers(episode.steps())
+    monkeypatch.setattr(predictor_module, "_STEP_CACHE", 8)
+    same_answers(random_episode(rng, 300, observations=9).steps())
+    assert len(predictor._step_codes) <= 8
+    with pytest.raises(ParameterError, match="both as an action and as an observation"):
+        predictor.predict([((100,), (1,)), ((101,), (101,))], (102,))

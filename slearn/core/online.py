@@ -102,6 +102,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
+    ranked = np.empty(out.top.shape[1], np.int32)  # the entry behind each place of a ranking
     learn = run.learn
     while step < len(action):
         r0, r1 = offsets[step], offsets[step + 1]
@@ -153,7 +154,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                 if run.record and m > 0:
                     k_sel, kind = select(weights, v, cand, m)
                     _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
-                            count, fresh, last_seen, outcome, nodes, m)
+                            count, fresh, last_seen, outcome, nodes, m, ranked)
                 if learn:
                     update(weights, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
@@ -196,8 +197,9 @@ def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
 
 @helper
 def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
-            outcome, nodes, m):
-    """Store the prediction of report ``r``: the outcome, its share, and the ranking."""
+            outcome, nodes, m, ranked):
+    """Store the prediction of report ``r``: the outcome, its share, and the ranking.
+    ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
     weight = fresh if kind == FRESH else count
     total = node_total(first, nxt, weight, node)
     out.predicted[r] = said
@@ -213,11 +215,11 @@ def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, l
         if filled >= top.shape[1]:
             break
         w = fresh if (kind == FRESH and k == length) else count
-        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, w, last_seen, outcome)
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, w, last_seen, outcome, ranked)
     for k in range(length + 1, m + 1):
         if filled >= top.shape[1]:
             break
-        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, count, last_seen, outcome)
+        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, count, last_seen, outcome, ranked)
 
 
 @helper
@@ -233,9 +235,10 @@ def _share(first, nxt, weight, outcome, node, token, total):
 
 
 @helper
-def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome):
+def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome, ranked):
     """Append one node's outcomes to row ``r`` of ``top`` in rank order, skipping those
-    already there."""
+    already there. ``ranked[i]`` remembers the entry placed at ``top[r, i]`` (from ``filled``
+    on), so placing an entry compares it with entries, not outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
     total = 0
@@ -253,25 +256,16 @@ def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome):
                 break
         if not taken and weight[e] > 0:
             pos = filled
-            while pos > start and _ranked_before(e, top[r, pos - 1], head, nxt, weight, last_seen,
-                                                 outcome):
+            while pos > start and ranks_above(weight, last_seen, outcome, e, ranked[pos - 1]):
                 pos -= 1
             if pos < k:
                 for i in range(min(filled, k - 1), pos, -1):
                     top[r, i] = top[r, i - 1]
                     top_p[r, i] = top_p[r, i - 1]
+                    ranked[i] = ranked[i - 1]
                 top[r, pos] = o
                 top_p[r, pos] = weight[e] / total
+                ranked[pos] = e
                 filled = min(filled + 1, k)
         e = nxt[e]
     return filled
-
-
-@helper
-def _ranked_before(e, other_outcome, head, nxt, weight, last_seen, outcome):
-    f = head
-    while f != -1:
-        if outcome[f] == other_outcome:
-            return ranks_above(weight, last_seen, outcome, e, f)
-        f = nxt[f]
-    return True

@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core._jit import helper, kernel
+from slearn.core.addresses import address_table, cube, matrix, vector
 from slearn.core.context_tree import Tree
 from slearn.core.mixer import KINDS, Mixer
 from slearn.core.online import Reports, Run, _hold_silent, new_reports, run_codes
@@ -103,15 +104,35 @@ class Predictor:
         self.top_k = top_k
         self._arrays = None  # what the token dictionaries were built for
         self._known: tuple[int, ...] = ()
-        self._state: tuple = (None, None)  # the library's tree and mixer, and as plain tuples
+        self._single: tuple = ()  # one query's buffers
+        self._single_state: tuple = (None, None, None)  # the tree, mixer and clock its table points to
+        self._single_table = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
+        self._step_codes: dict = {}  # step -> (action token, views, tokens), see _cached_codes
+        self._acted: set = set()     # symbols the cached steps use as actions,
+        self._observed: set = set()  # and as observations
+        self._no_start = np.zeros(1, np.int64)
+        self._q_offsets = np.zeros(64, np.int64)
+        self._ends = [np.array([n], np.int64) for n in range(64)]
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
 
         ``history`` is a list of ``(actions, observations)`` steps of symbols, oldest first.
         """
+        library = self.library
+        if library.clock and library.view_names and getattr(library, "streams", None) is not None:
+            self._refresh()
+            codes = self._cached_codes(history, actions)
+            if codes is not None:
+                n = len(codes.action)
+                if n + 1 > len(self._q_offsets):
+                    self._q_offsets = np.zeros(2 * n + 2, np.int64)
+                _predict_queries(self._table(self._single), codes.action, codes.offsets, codes.view,
+                                 codes.token, self._no_start, self._end(n - 1), self._q_offsets,
+                                 *self._single[4])
+                return self._single_prediction(self._single[1])
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
     def predict_unknown(self, steps: list[Step], unknown_views: np.ndarray | None = None) -> Prediction:
@@ -167,16 +188,26 @@ class Predictor:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
         ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
         the predictor: allocating them costs more than the query)."""
-        library = self.library
         scratch, out, q_view, q_token, run = buffers
         span = int((ends - starts).max()) + 2 if len(ends) else 2
-        if library.tree is not self._state[0] or library.mixer is not self._state[1]:
-            self._state = (library.tree, library.mixer, tuple(library.tree), tuple(library.mixer))
-        # Plain tuples: numba types a NamedTuple argument in Python, microseconds per call.
-        _predict_queries(self._state[2], self._state[3], scratch, codes.action, codes.offsets,
-                         codes.view, codes.token, starts, ends, q_view, q_token,
-                         np.zeros(span, np.int64), library.clock_array, *run, tuple(out))
+        _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token, starts, ends,
+                         np.zeros(span, np.int64), *run)
         return out
+
+    def _table(self, buffers: tuple) -> np.ndarray:
+        """The address table of the library's state and ``buffers``. The single query's
+        is kept, with the arrays it points to, until the library replaces one of them (its
+        tree grew, or it learned new views)."""
+        library = self.library
+        state = (library.tree, library.mixer, library.clock_array)
+        single = buffers is self._single
+        if single and all(a is b for a, b in zip(state, self._single_state)):
+            return self._single_table
+        scratch, out, q_view, q_token, _ = buffers
+        table = _state_table(state[:2], scratch, out, q_view, q_token, state[2])
+        if single:
+            self._single_state, self._single_table = state, table
+        return table
 
     def _prediction(self, out: Reports, i: int) -> Prediction:
         names, n_views = self.library.view_names, self._n_views()
@@ -185,6 +216,20 @@ class Predictor:
                                          int(out.length[i * n_views + v]), int(out.kind[i * n_views + v]),
                                          out.top[i * n_views + v], out.top_p[i * n_views + v])
                            for v in range(n_views)])
+
+    def _single_prediction(self, out: Reports) -> Prediction:
+        """``_prediction(out, 0)``, reading each array once."""
+        symbols, names = self._symbols, self.library.view_names
+        views = []
+        for v, (token, score, length, kind, top, top_p) in enumerate(zip(
+                out.predicted.tolist(), out.score.tolist(), out.length.tolist(), out.kind.tolist(),
+                out.top.tolist(), out.top_p.tolist())):
+            if token < 0:
+                views.append(ViewPrediction(v, names[v], None, 0.0, -1, ""))
+            else:
+                views.append(ViewPrediction(v, names[v], symbols(token), score, length, KINDS[kind],
+                                            [(symbols(t), p) for t, p in zip(top, top_p) if t >= 0]))
+        return Prediction(views)
 
     def _view_of(self, v: int, name: str, token: int, score: float, length: int, kind: int,
                  top: np.ndarray, top_p: np.ndarray) -> ViewPrediction:
@@ -238,7 +283,8 @@ class Predictor:
         if arrays is not self._arrays or known != self._known:
             library.prepare()
             self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
-            self._single = _buffers(library, 1, self.top_k)
+            self._step_codes, self._acted, self._observed = {}, set(), set()
+            self._single, self._single_state = _buffers(library, 1, self.top_k), (None, None, None)
 
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
@@ -258,6 +304,61 @@ class Predictor:
             _check_vocabulary(steps, len(view_of))
             view_of = view_of.tolist()
         return self._codes_of(steps, view_of)
+
+    def _cached_codes(self, history, actions) -> StepCodes | None:
+        """``_encode_steps(history + [(actions, ())])`` through a dictionary of steps already
+        encoded (a stream's steps repeat), or ``None`` when a step is not a tuple of
+        tuples (then the general path encodes it). Checks what ``_encode_steps`` checks:
+        an unseen step on entry; a symbol used both as an action and as an observation
+        across the steps only while the cached steps do so at all (otherwise no query of
+        them can)."""
+        cache = self._step_codes
+        action_tokens, offsets, views, tokens = [], [0], [], []
+        steps = list(history)
+        steps.append((actions if type(actions) is tuple else tuple(actions), ()))
+        for step in steps:
+            try:
+                code = cache.get(step)
+            except TypeError:  # lists: not a key
+                return None
+            if code is None:
+                if type(step) is not tuple or len(step) != 2 or type(step[0]) is not tuple \
+                        or type(step[1]) is not tuple:
+                    return None
+                code = self._step_code(step)
+            action_tokens.append(code[0])
+            views.extend(code[1])
+            tokens.extend(code[2])
+            offsets.append(len(views))
+        if self.library.vocabulary is None and not self._acted.isdisjoint(self._observed):
+            _check_joint(steps)
+        return StepCodes(np.array(action_tokens, np.int32), np.array(offsets, np.int64),
+                         np.array(views, np.int32), np.array(tokens, np.int32))
+
+    def _step_code(self, step: Step) -> tuple:
+        """One step's codes, checked as ``_encode_steps`` checks them, and cached."""
+        library, (acts, obs) = self.library, step
+        if acts and not library.has_actions:
+            raise ParameterError("this library learned a stream without actions; an episode with "
+                                 "actions needs a library made with has_actions=True")
+        if library.vocabulary is None:
+            _check_joint([step])
+            view_of = None
+        else:
+            view_of = library._factored_mapping()
+            _check_vocabulary([step], len(view_of))
+            view_of = view_of.tolist()
+        codes = self._codes_of([step], view_of)
+        code = (int(codes.action[0]), tuple(codes.view.tolist()), tuple(codes.token.tolist()))
+        if len(self._step_codes) >= _STEP_CACHE:
+            self._step_codes, self._acted, self._observed = {}, set(), set()
+        self._step_codes[step] = code
+        self._acted.update(acts)
+        self._observed.update(obs)
+        return code
+
+    def _end(self, n: int) -> np.ndarray:
+        return self._ends[n] if n < len(self._ends) else np.array([n], np.int64)
 
     def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
         """Steps as codes; ``view_of`` maps symbols to views (``None``: one joint view)."""
@@ -336,19 +437,48 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
 
 
 _NO_BOUND = np.iinfo(np.int64).max  # frozen runs add no entries
+_STEP_CACHE = 1 << 16  # steps a predictor remembers the codes of
+
+
+def _state_table(state: tuple, scratch: tuple, out: Reports, q_view: np.ndarray, q_token: np.ndarray,
+                 clock: np.ndarray) -> np.ndarray:
+    """The arrays of a query run as one address table, in the order ``_predict_queries``
+    reads them: the tree's fields, the mixer's, the scratch streams', the reports', then
+    ``q_view``, ``q_token`` and the clock. The caller keeps them alive."""
+    tree, mixer = state
+    return address_table((*tree, *mixer, *scratch, *out, q_view, q_token, clock))
+
+
+_TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
+    len(Tree._fields) + len(Mixer._fields) + len(ViewState._fields)
+_QUERY = _OUT + len(Reports._fields)
 
 
 @kernel
-def _predict_queries(tree_arrays, mixer_arrays, scratch_arrays, action, offsets, view, token, starts,
-                     ends, q_view, q_token, q_offsets, clock, has_actions, empty_action,
-                     empty_observation, out_arrays):
+def _predict_queries(table, action, offsets, view, token, starts, ends, q_offsets, has_actions,
+                     empty_action, empty_observation):
     """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, then
     run step ``ends[i]`` (its action; every view reporting ``q_token``) through ``run_codes``,
     as if the query's steps were an episode of their own. Rows ``i * views ..`` of ``out``.
-    State comes as plain tuples of arrays (the fields of ``Tree``, ``Mixer``, ``ViewState``,
-    ``Reports``)."""
-    tree, mixer, scratch = Tree(*tree_arrays), Mixer(*mixer_arrays), ViewState(*scratch_arrays)
-    out = Reports(*out_arrays)
+    The state comes as one address table (``_state_table``): numba wraps every array
+    argument on every call, which cost more than a small query."""
+    i32, i64, f64 = np.int32, np.int64, np.float64
+    t, m, sc, o = _TREE, _MIXER, _SCRATCH, _OUT
+    tree = Tree(vector(table, t, i32), vector(table, t + 1, i32), vector(table, t + 2, i32),
+                vector(table, t + 3, i32), vector(table, t + 4, i32), vector(table, t + 5, i32),
+                vector(table, t + 6, i32), vector(table, t + 7, i32), vector(table, t + 8, i32),
+                vector(table, t + 9, i32), vector(table, t + 10, i64), vector(table, t + 11, i64),
+                vector(table, t + 12, i64), vector(table, t + 13, i32), vector(table, t + 14, i32),
+                vector(table, t + 15, i64))
+    mixer = Mixer(cube(table, m, f64), matrix(table, m + 1, f64), vector(table, m + 2, i32))
+    scratch = ViewState(matrix(table, sc, i32), vector(table, sc + 1, i64), vector(table, sc + 2, i32),
+                        vector(table, sc + 3, i32))
+    out = Reports(vector(table, o, i32), vector(table, o + 1, i32), vector(table, o + 2, np.int8),
+                  vector(table, o + 3, f64), vector(table, o + 4, f64), matrix(table, o + 5, i32),
+                  matrix(table, o + 6, f64), vector(table, o + 7, np.bool_), vector(table, o + 8, i32),
+                  vector(table, o + 9, i32), vector(table, o + 10, i32))
+    q_view, q_token = vector(table, _QUERY, i32), vector(table, _QUERY + 1, i32)
+    clock = vector(table, _QUERY + 2, i64)
     run = Run(has_actions, empty_action, empty_observation, _NO_BOUND, False, True, False, True)
     recent, filled, held = scratch.recent, scratch.filled, scratch.held
     n_views = len(filled)
