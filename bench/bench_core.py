@@ -3,13 +3,17 @@
 - learning events/s on a long pointer stream (target >= 1,000,000 on one core);
 - online predict-then-learn steps/s (target >= 200,000);
 - RAM per stored pattern (a context with one outcome) at 10^6 patterns over a vocabulary
-  of 10^4 symbols, everything prediction needs included (target <= 100 bytes).
+  of 10^4 symbols, everything prediction needs included (target <= 100 bytes): as
+  allocated, and as resident (the RSS growth of this process while learning it; a tree's
+  room not yet used is reserved but never written, see ``context_tree.new_tree``).
 
 Run: ``python bench/bench_core.py`` (numba compiles once; the first figures exclude it).
 """
 
 from __future__ import annotations
 
+import gc
+import os
 import time
 
 import numpy as np
@@ -53,8 +57,19 @@ def bench_online(trials: int) -> None:
               f"{(len(episode) - 1) / seconds:>12,.0f} steps/s   (accuracy {correct.mean():.1%})")
 
 
+def resident_bytes() -> int:
+    """This process's resident memory (``/proc/self/statm``; 0 where there is none)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return 0
+
+
 def bench_memory(target_patterns: int, vocabulary: int) -> None:
     rng = np.random.default_rng(3)
+    gc.collect()
+    before = resident_bytes()
     library = PatternLibrary()
     started = time.perf_counter()
     steps = 0
@@ -68,8 +83,12 @@ def bench_memory(target_patterns: int, vocabulary: int) -> None:
     n = len(library)
     print(f"memory {n:,} patterns from {steps:,} steps over {vocabulary + 4:,} symbols "
           f"(learned in {learn_seconds:.1f} s)")
-    print(f"       library {library.nbytes() / n:6.1f} bytes/pattern (arrays as allocated, "
-          f"prediction needs nothing else)")
+    gc.collect()
+    resident = resident_bytes() - before
+    print(f"       library {library.nbytes() / n:6.1f} bytes/pattern as allocated (capacity, of "
+          f"which the room not yet used is reserved, not resident); prediction needs nothing else")
+    print(f"       resident {resident / n:6.1f} bytes/pattern: this process's RSS growth while "
+          f"learning it (target <= 100)")
 
 
 if __name__ == "__main__":

@@ -20,13 +20,14 @@ of an older epoch is next counted. Nodes and entries are found through
 
 from __future__ import annotations
 
+import mmap
 from typing import NamedTuple
 
 import numpy as np
 
 from slearn.core import hashtable
 from slearn.core._jit import helper
-from slearn.core.hashtable import EMPTY, doubled, find, probe
+from slearn.core.hashtable import EMPTY, find, grown, probe
 
 
 class Tree(NamedTuple):
@@ -58,13 +59,30 @@ _ENTRY_TYPES = {"count": np.int64, "last_seen": np.int64, "fresh": np.int64}
 
 
 def new_tree(nodes: int = 1024, entries: int = 1024) -> Tree:
-    """An empty tree with room for ``nodes`` nodes and ``entries`` entries."""
-    node_arrays = {name: np.full(nodes, fill, _NODE_TYPES.get(name, np.int32))
-                   for name, fill in _NODE_FILL.items()}
-    entry_arrays = {name: np.full(entries, fill, _ENTRY_TYPES.get(name, np.int32))
-                    for name, fill in _ENTRY_FILL.items()}
-    return Tree(**node_arrays, node_slots=hashtable.new_slots(nodes), **entry_arrays,
-                entry_slots=hashtable.new_slots(entries), size=np.zeros(2, np.int64))
+    """An empty tree with room for ``nodes`` nodes and ``entries`` entries.
+
+    Only the hash slots are written now. A node or entry is written whole when it is
+    added (:func:`add_root`, :func:`child_or_add`, :func:`entry_or_add`), and the arrays are
+    anonymous memory maps (:func:`reserved`), so the room not yet used is memory the system
+    has promised but not given: a tree's resident size follows what it holds, not its
+    capacity, and an array left behind by :func:`grow` goes back to the system at once.
+    """
+    node_arrays = {name: reserved(nodes, _NODE_TYPES.get(name, np.int32)) for name in _NODE_FILL}
+    entry_arrays = {name: reserved(entries, _ENTRY_TYPES.get(name, np.int32)) for name in _ENTRY_FILL}
+    return Tree(**node_arrays, node_slots=_empty_slots(nodes), **entry_arrays,
+                entry_slots=_empty_slots(entries), size=np.zeros(2, np.int64))
+
+
+def reserved(n: int, dtype) -> np.ndarray:
+    """A writable array of ``n`` values in an anonymous memory map: zero pages until written
+    (C's allocator would keep a freed array's memory for later use, resident)."""
+    return np.frombuffer(mmap.mmap(-1, max(n * np.dtype(dtype).itemsize, 1)), dtype, count=n)
+
+
+def _empty_slots(capacity: int) -> np.ndarray:
+    slots = reserved(hashtable.slots_for(capacity), np.int32)
+    slots.fill(EMPTY)
+    return slots
 
 
 def room(tree: Tree) -> tuple[int, int]:
@@ -76,7 +94,7 @@ def grow(tree: Tree, nodes: int, entries: int) -> Tree:
     """A copy with room for at least ``nodes`` more nodes and ``entries`` more entries."""
     n, m = int(tree.size[0]), int(tree.size[1])
     node_cap, entry_cap = len(tree.parent), len(tree.owner)
-    node_cap, entry_cap = doubled(node_cap, n, nodes), doubled(entry_cap, m, entries)
+    node_cap, entry_cap = grown(node_cap, n, nodes), grown(entry_cap, m, entries)
     if node_cap == len(tree.parent) and entry_cap == len(tree.owner):
         return tree
     fresh = new_tree(node_cap, entry_cap)
@@ -90,17 +108,18 @@ def grow(tree: Tree, nodes: int, entries: int) -> Tree:
 
 
 def ensure_room(tree: Tree, nodes: int, entries: int) -> Tree:
-    """``tree`` itself when it has the room, else a grown copy (doubling)."""
+    """``tree`` itself when it has the room, else a grown copy (by half, or more)."""
     free_nodes, free_entries = room(tree)
     if free_nodes >= nodes and free_entries >= entries:
         return tree
-    return grow(tree, max(nodes, len(tree.parent)), max(entries, len(tree.owner)))
+    return grow(tree, nodes, entries)
 
 
 def add_root(tree: Tree, view: int) -> int:
     """A new root node for ``view`` (call with room for one node)."""
     node = int(tree.size[0])
-    tree.parent[node] = -1
+    for name, fill in _NODE_FILL.items():
+        getattr(tree, name)[node] = fill
     tree.token[node] = view
     tree.size[0] = node + 1
     return node
@@ -120,7 +139,7 @@ def child(node_slots, parent, token, node, tok):
 
 
 @helper
-def child_or_add(node_slots, parent, token, size, node, tok):
+def child_or_add(node_slots, parent, token, first, best, newest, fresh_best, epoch, size, node, tok):
     """The child of ``node`` along ``tok``, added when missing (room is the caller's)."""
     s = probe(node_slots, parent, token, node, tok)
     found = node_slots[s]
@@ -129,13 +148,18 @@ def child_or_add(node_slots, parent, token, size, node, tok):
     new = np.int32(size[0])
     parent[new] = node
     token[new] = tok
+    first[new] = -1
+    best[new] = -1
+    newest[new] = -1
+    fresh_best[new] = -1
+    epoch[new] = 0
     node_slots[s] = new
     size[0] = new + 1
     return new
 
 
 @helper
-def entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, out):
+def entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size, node, out):
     """The entry of ``out`` after ``node``, added when missing (room is the caller's)."""
     s = probe(entry_slots, owner, outcome, node, out)
     found = entry_slots[s]
@@ -144,6 +168,9 @@ def entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, out):
     e = np.int32(size[1])
     owner[e] = node
     outcome[e] = out
+    count[e] = 0
+    last_seen[e] = 0
+    fresh[e] = 0
     nxt[e] = first[node]
     first[node] = e
     entry_slots[s] = e

@@ -4,9 +4,11 @@ A table maps a pair of non-negative 32-bit ids ``(a, b)`` (a trie edge ``(parent
 a context's outcome ``(node, outcome)``) to the id of the record that holds it. Slots
 hold record ids only (``int32``, -1 empty); a probe compares a slot's record through the
 arrays ``a_of``/``b_of`` that store the pair of every record, so the table costs 4 bytes
-a slot. Tables are powers of two kept at most half full (linear probing stays short);
-records are never deleted one by one: a structure that forgets rebuilds its table with
-:func:`rebuild`.
+a slot. A table has twice as many slots as its structure has room for records, so it is
+at most half full (linear probing stays short); its size need not be a power of two (the
+hash is scaled to it, Lemire's multiply-shift), so a structure may grow by half rather than
+double: :func:`grown`. Records are never deleted one by one: a structure that forgets
+rebuilds its table with :func:`rebuild`.
 """
 
 from __future__ import annotations
@@ -20,14 +22,23 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 def slots_for(capacity: int) -> int:
-    """Slots for ``capacity`` records: a power of two at least twice as large."""
-    return 1 << int(2 * max(int(capacity), 8) - 1).bit_length()
+    """Slots for ``capacity`` records: twice as many."""
+    return 2 * max(int(capacity), 8)
 
 
 def doubled(capacity: int, used: int, more: int) -> int:
     """``capacity`` doubled as often as needed to hold ``more`` records past ``used``."""
     while capacity - used < more:
         capacity *= 2
+    return capacity
+
+
+def grown(capacity: int, used: int, more: int) -> int:
+    """``capacity`` grown by half as often as needed to hold ``more`` records past ``used``:
+    after growing, the table is a third full, not a quarter (its slots are memory that is
+    written whole, unlike the records' room)."""
+    while capacity - used < more:
+        capacity += max(capacity // 2, 8)
     return capacity
 
 
@@ -38,21 +49,25 @@ def new_slots(capacity: int) -> np.ndarray:
 
 @helper
 def home(slots, a, b):
-    """The first slot probed for the pair ``(a, b)``."""
+    """The first slot probed for the pair ``(a, b)``: the high 32 bits of a multiplicative
+    hash, scaled to the table's size."""
     key = (np.uint64(a) << np.uint64(32)) | np.uint64(b)
-    return np.int64((key * _GOLDEN) >> np.uint64(32)) & (len(slots) - 1)
+    h = (key * _GOLDEN) >> np.uint64(32)
+    return np.int64((h * np.uint64(len(slots))) >> np.uint64(32))
 
 
 @helper
 def probe(slots, a_of, b_of, a, b):
     """The slot holding the record of ``(a, b)``, or the empty slot it would take."""
-    mask = len(slots) - 1
+    n = len(slots)
     s = home(slots, a, b)
     while True:
         r = slots[s]
         if r == EMPTY or (a_of[r] == a and b_of[r] == b):
             return s
-        s = (s + 1) & mask
+        s += 1
+        if s == n:
+            s = 0
 
 
 @helper
@@ -65,11 +80,13 @@ def find(slots, a_of, b_of, a, b):
 def rebuild(slots, a_of, b_of, first, n):
     """Empty ``slots`` and insert records ``first..n-1`` (a root record has ``a_of == -1``)."""
     slots[:] = EMPTY
-    mask = len(slots) - 1
+    size = len(slots)
     for r in range(first, n):
         if a_of[r] < 0:
             continue
         s = home(slots, a_of[r], b_of[r])
         while slots[s] != EMPTY:
-            s = (s + 1) & mask
+            s += 1
+            if s == size:
+                s = 0
         slots[s] = r

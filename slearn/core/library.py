@@ -305,7 +305,8 @@ class PatternLibrary:
         n = len(offsets) - 1
         library.tree = context_tree.ensure_room(library.tree, int(offsets[-1]) + 64, n + 64)
         tree = library.tree
-        _import(tree.parent, tree.token, tree.first, tree.epoch, tree.node_slots, tree.owner,
+        _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.epoch,
+                tree.node_slots, tree.owner,
                 tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next, tree.entry_slots,
                 tree.size, cast(ViewState, library.streams).root, library.mixer.epoch,
                 np.asarray(arrays["view"], np.int32), offsets,
@@ -362,6 +363,7 @@ def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
     for name in ("outcome", "count", "last_seen", "fresh"):
         getattr(out, name)[: len(kept_entries)] = getattr(tree, name)[kept_entries]
     out.size[:] = (len(kept_nodes), len(kept_entries))
+    out.first[: len(kept_nodes)] = -1
     _link_entries(out.owner, out.first, out.next, len(kept_entries))
     _derive_best(out.first, out.next, out.count, out.last_seen, out.fresh, out.outcome, out.best,
                  out.newest, out.fresh_best, len(kept_nodes))
@@ -430,15 +432,18 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
 
 
 @kernel
-def _import(parent, token, first, node_epoch, node_slots, owner, outcome, count, last_seen, fresh,
-            nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen, fresh_in):
+def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slots, owner, outcome, count,
+            last_seen, fresh, nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen,
+            fresh_in):
     for i in range(len(offsets) - 1):
         start, end = offsets[i], offsets[i + 1]
         node = roots[view[i]]
         for j in range(end - 2, start - 1, -1):  # newest context token first
-            node = context_tree.child_or_add(node_slots, parent, token, size, node, flat[j])
+            node = context_tree.child_or_add(node_slots, parent, token, first, best, newest, fresh_best,
+                                            node_epoch, size, node, flat[j])
             node_epoch[node] = view_epoch[view[i]]
-        e = context_tree.entry_or_add(entry_slots, owner, outcome, nxt, first, size, node, flat[end - 1])
+        e = context_tree.entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size,
+                                     node, flat[end - 1])
         count[e] = counts[i]
         last_seen[e] = seen[i]
         fresh[e] = fresh_in[i]

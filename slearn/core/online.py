@@ -127,7 +127,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                 node, n = root[v], 0
                 for k in range(1, depth + 1):
                     t = recent[v, (filled[v] - k) % K]
-                    node = child_or_add(node_slots, parent, tok_of, size, node, t) if learn \
+                    node = child_or_add(node_slots, parent, tok_of, first, best, newest, fresh_best, node_epoch,
+                                        size, node, t) if learn \
                         else child(node_slots, parent, tok_of, node, t)
                     if node < 0:
                         break
@@ -169,7 +170,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     for k in range(1, n + 1):
                         nd = nodes[k]
                         refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
-                        e = entry_or_add(entry_slots, owner, outcome, nxt, first, size, nd, x)
+                        e = entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size, nd, x)
                         credit(count, last_seen, fresh, best, newest, fresh_best, e, nd, clock[0])
             recent[v, filled[v] % K] = x
             filled[v] += 1
