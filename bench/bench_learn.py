@@ -42,7 +42,7 @@ _TREE_FIELDS = ("parent", "token", "first", "best", "newest", "fresh_best", "epo
 
 class _Tree(ctypes.Structure):
     _fields_ = [(name, ctypes.c_void_p) for name in _TREE_FIELDS] + [
-        ("node_mask", ctypes.c_int64), ("entry_mask", ctypes.c_int64)]
+        ("node_slot_count", ctypes.c_int64), ("entry_slot_count", ctypes.c_int64)]
 
 
 class _Params(ctypes.Structure):
@@ -79,7 +79,7 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
     tree, streams, mix = out.tree, out.streams, out.mixer
     arrays = [np.ascontiguousarray(a) for a in (codes.action, codes.offsets, codes.view, codes.token)]
     struct = _Tree(*[getattr(tree, name).ctypes.data for name in _TREE_FIELDS],
-                   len(tree.node_slots) - 1, len(tree.entry_slots) - 1)
+                   len(tree.node_slots), len(tree.entry_slots))
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
                      float(np.log(1.0 / mixer.FALSE_ALARM)),

@@ -1,6 +1,8 @@
 """The pattern library: every occurrence counted (against a dict model), views, forgetting,
 exact merging, determinism, export round trips."""
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -235,3 +237,32 @@ def test_a_symbol_used_as_action_and_observation_needs_a_vocabulary():
     library = PatternLibrary()
     with pytest.raises(ParameterError):
         library.learn(Episode.from_pairs([1], [1], [2]))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="reads this process's RSS")
+def test_a_trees_unused_room_is_not_resident_and_grown_out_arrays_go_back():
+    """The room of a tree is reserved, not written: resident memory follows the hash slots
+    (written whole) and what is held, not the capacity; growing frees the old arrays."""
+    import gc
+
+    from slearn.core import context_tree
+
+    def resident_mb() -> float:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    library = PatternLibrary(max_length=2)
+    library.learn(Episode.from_pairs(np.array([0]), np.full(20_000, 7), np.arange(20_000) % 5))
+    gc.collect()
+    before = resident_mb()  # after compiling
+    tree = context_tree.new_tree(4_000_000, 4_000_000)  # 256 MB of room, 64 MB of slots
+    room_mb = sum(getattr(tree, name).nbytes for name in tree._fields if not name.endswith("slots")) / 2**20
+    slots_mb = (tree.node_slots.nbytes + tree.entry_slots.nbytes) / 2**20
+    assert room_mb > 200
+    assert resident_mb() - before < slots_mb + 0.25 * room_mb
+    grown_from = library.tree
+    library.tree = context_tree.grow(library.tree, 3_000_000, 3_000_000)
+    assert library.tree is not grown_from and library.tree.size.tolist() == grown_from.size.tolist()
+    del grown_from, tree
+    gc.collect()
+    assert resident_mb() - before < slots_mb + 0.25 * room_mb  # the old and the unused went back

@@ -31,41 +31,46 @@ typedef struct {
     int32_t *parent, *token, *first, *best, *newest, *fresh_best, *epoch, *node_slots;
     int32_t *owner, *outcome, *next, *entry_slots;
     int64_t *count, *last_seen, *fresh, *size;
-    int64_t node_mask, entry_mask;
+    int64_t node_slot_count, entry_slot_count;
 } tree_t;
 
-static int64_t home(int64_t a, int64_t b, int64_t mask) {
+/* The high 32 bits of a multiplicative hash, scaled to the table's size (any size). */
+static int64_t home(int64_t a, int64_t b, int64_t n) {
     uint64_t key = ((uint64_t)a << 32) | (uint64_t)(uint32_t)b;
-    return (int64_t)((key * 0x9E3779B97F4A7C15ULL) >> 32) & mask;
+    uint64_t h = (key * 0x9E3779B97F4A7C15ULL) >> 32;
+    return (int64_t)((h * (uint64_t)n) >> 32);
 }
 
 static int32_t child_or_add(tree_t *t, int32_t node, int32_t tok) {
-    int64_t s = home(node, tok, t->node_mask);
+    int64_t s = home(node, tok, t->node_slot_count);
     for (;;) {
         int32_t r = t->node_slots[s];
         if (r == EMPTY) break;
         if (t->parent[r] == node && t->token[r] == tok) return r;
-        s = (s + 1) & t->node_mask;
+        if (++s == t->node_slot_count) s = 0;
     }
     int32_t fresh = (int32_t)t->size[0];
     t->parent[fresh] = node;
     t->token[fresh] = tok;
+    t->first[fresh] = t->best[fresh] = t->newest[fresh] = t->fresh_best[fresh] = -1;
+    t->epoch[fresh] = 0;
     t->node_slots[s] = fresh;
     t->size[0] = fresh + 1;
     return fresh;
 }
 
 static int32_t entry_or_add(tree_t *t, int32_t node, int32_t out) {
-    int64_t s = home(node, out, t->entry_mask);
+    int64_t s = home(node, out, t->entry_slot_count);
     for (;;) {
         int32_t r = t->entry_slots[s];
         if (r == EMPTY) break;
         if (t->owner[r] == node && t->outcome[r] == out) return r;
-        s = (s + 1) & t->entry_mask;
+        if (++s == t->entry_slot_count) s = 0;
     }
     int32_t e = (int32_t)t->size[1];
     t->owner[e] = node;
     t->outcome[e] = out;
+    t->count[e] = t->last_seen[e] = t->fresh[e] = 0;
     t->next[e] = t->first[node];
     t->first[node] = e;
     t->entry_slots[s] = e;

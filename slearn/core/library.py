@@ -49,6 +49,7 @@ DEFAULT_MAX_LENGTH = 6
 MAX_MAX_LENGTH = 64
 MAX_PATTERNS = (1 << 31) - 1  # entries are int32-indexed
 FORGET_TO = 0.9
+_IMPORT_PIECE = 1 << 13  # patterns imported per compiled call
 JOINT = "*"
 """The view name of a library without a vocabulary: every observation channel at once."""
 
@@ -302,16 +303,22 @@ class PatternLibrary:
         library.mixer = with_views(mixer, len(view_names))
         library._ensure_state()
         offsets = np.asarray(arrays["pattern_offsets"], np.int64)
+        view, flat = np.asarray(arrays["view"], np.int32), np.asarray(arrays["pattern_tokens"], np.int32)
+        counts, seen = np.asarray(arrays["count"], np.int64), np.asarray(arrays["last_seen"], np.int64)
+        fresh = np.asarray(arrays["fresh"], np.int64)
         n = len(offsets) - 1
-        library.tree = context_tree.ensure_room(library.tree, int(offsets[-1]) + 64, n + 64)
+        # In pieces, each given room for a new node per token at most: the tree grows with
+        # the nodes it really holds (shared prefixes), not with the patterns' total length.
+        for lo in range(0, n, _IMPORT_PIECE):
+            hi = min(lo + _IMPORT_PIECE, n)
+            library.tree = context_tree.ensure_room(library.tree, int(offsets[hi] - offsets[lo]) + 64,
+                                                    hi - lo + 64)
+            tree = library.tree
+            _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.epoch,
+                    tree.node_slots, tree.owner, tree.outcome, tree.count, tree.last_seen, tree.fresh,
+                    tree.next, tree.entry_slots, tree.size, cast(ViewState, library.streams).root,
+                    library.mixer.epoch, view, offsets, flat, counts, seen, fresh, lo, hi)
         tree = library.tree
-        _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.epoch,
-                tree.node_slots, tree.owner,
-                tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next, tree.entry_slots,
-                tree.size, cast(ViewState, library.streams).root, library.mixer.epoch,
-                np.asarray(arrays["view"], np.int32), offsets,
-                np.asarray(arrays["pattern_tokens"], np.int32), np.asarray(arrays["count"], np.int64),
-                np.asarray(arrays["last_seen"], np.int64), np.asarray(arrays["fresh"], np.int64))
         _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
                      tree.best, tree.newest, tree.fresh_best, int(tree.size[0]))
         return library
@@ -434,8 +441,8 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
 @kernel
 def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slots, owner, outcome, count,
             last_seen, fresh, nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen,
-            fresh_in):
-    for i in range(len(offsets) - 1):
+            fresh_in, lo, hi):
+    for i in range(lo, hi):
         start, end = offsets[i], offsets[i + 1]
         node = roots[view[i]]
         for j in range(end - 2, start - 1, -1):  # newest context token first

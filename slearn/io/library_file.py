@@ -509,6 +509,8 @@ def load_library(path: str | os.PathLike) -> LoadedLibrary:
                    _occurrence(parquet, groups, arrays, tokens, vocabulary, facts, params, path))
         library.forgotten = int(facts["forgotten"])
         spec = Spec.from_dict(doc["spec"], str(path)) if doc["spec"] is not None else None
+    del arrays, parquet
+    pa.default_memory_pool().release_unused()  # Arrow's allocator keeps what the read freed
     return LoadedLibrary(library, vocabulary, spec, params, doc["provenance"], doc["version"], str(path))
 
 
