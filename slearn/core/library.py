@@ -302,6 +302,16 @@ class PatternLibrary:
         library.view_names = list(view_names)
         library.mixer = with_views(mixer, len(view_names))
         library._ensure_state()
+        library.add_export(arrays)
+        return library
+
+    def add_export(self, arrays: dict[str, np.ndarray], shift: int = 0) -> None:
+        """Count the patterns of another library's :meth:`export` (in this library's tokens
+        and views) into this one: counts and fresh counts add, a pattern's last occurrence
+        becomes ``last_seen + shift`` (the other library ran ``shift`` steps after this one
+        began: its occurrences are the later ones), and patterns new here are appended in
+        the export's order. So a library rebuilt from one export and then added another is
+        the union :mod:`slearn.jobs.merge` defines, in one pass over the patterns."""
         offsets = np.asarray(arrays["pattern_offsets"], np.int64)
         view, flat = np.asarray(arrays["view"], np.int32), np.asarray(arrays["pattern_tokens"], np.int32)
         counts, seen = np.asarray(arrays["count"], np.int64), np.asarray(arrays["last_seen"], np.int64)
@@ -311,17 +321,15 @@ class PatternLibrary:
         # the nodes it really holds (shared prefixes), not with the patterns' total length.
         for lo in range(0, n, _IMPORT_PIECE):
             hi = min(lo + _IMPORT_PIECE, n)
-            library.tree = context_tree.ensure_room(library.tree, int(offsets[hi] - offsets[lo]) + 64,
-                                                    hi - lo + 64)
-            tree = library.tree
+            self.tree = context_tree.ensure_room(self.tree, int(offsets[hi] - offsets[lo]) + 64, hi - lo + 64)
+            tree = self.tree
             _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.epoch,
                     tree.node_slots, tree.owner, tree.outcome, tree.count, tree.last_seen, tree.fresh,
-                    tree.next, tree.entry_slots, tree.size, cast(ViewState, library.streams).root,
-                    library.mixer.epoch, view, offsets, flat, counts, seen, fresh, lo, hi)
-        tree = library.tree
+                    tree.next, tree.entry_slots, tree.size, cast(ViewState, self.streams).root,
+                    cast(Mixer, self.mixer).epoch, view, offsets, flat, counts, seen, fresh, shift, lo, hi)
+        tree = self.tree
         _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
                      tree.best, tree.newest, tree.fresh_best, int(tree.size[0]))
-        return library
 
     def nbytes(self) -> int:
         """Bytes held by the library's arrays (tree, weights, streams; not the tokens)."""
@@ -441,7 +449,7 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
 @kernel
 def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slots, owner, outcome, count,
             last_seen, fresh, nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen,
-            fresh_in, lo, hi):
+            fresh_in, shift, lo, hi):
     for i in range(lo, hi):
         start, end = offsets[i], offsets[i + 1]
         node = roots[view[i]]
@@ -451,6 +459,6 @@ def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slo
             node_epoch[node] = view_epoch[view[i]]
         e = context_tree.entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size,
                                      node, flat[end - 1])
-        count[e] = counts[i]
-        last_seen[e] = seen[i]
-        fresh[e] = fresh_in[i]
+        count[e] += counts[i]
+        last_seen[e] = seen[i] + shift
+        fresh[e] += fresh_in[i]

@@ -189,31 +189,23 @@ def _recency(n: int, where_a, where_b, seen_a, seen_b, shift: int) -> np.ndarray
 
 def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable,
                         token_map: np.ndarray, vocabulary: Vocabulary) -> PatternLibrary:
+    """``a`` rebuilt, then ``b``'s patterns counted into it (``PatternLibrary.add_export``):
+    the union in run order, counts summed, recency on one clock. Fresh counts of ``a`` are
+    dropped in the views where ``b`` raised an alarm (they belong to an epoch that ended)."""
     names = list(a.view_names) + [v for v in b.view_names if v not in a.view_names]
-    view_map = np.array([names.index(v) for v in b.view_names], np.int64)
+    view_map = np.array([names.index(v) for v in b.view_names], np.int32)
     ea, eb = a.export(), b.export()
-    width = a.max_context + 1
-    rows_b_tokens = token_map[eb["pattern_tokens"]] if len(eb["pattern_tokens"]) else eb["pattern_tokens"]
-    rows, wa, wb = _union(_rows(ea["pattern_offsets"], ea["pattern_tokens"], ea["view"], width),
-                          _rows(eb["pattern_offsets"], rows_b_tokens,
-                                view_map[eb["view"]] if len(eb["view"]) else eb["view"], width))
-    n = len(rows)
     mixer, alarmed = _merged_mixer(a, b, names, view_map)
-    view = rows[:, 0].astype(np.int32)
-    fresh = np.zeros(n, np.int64)
-    keep_a = ~alarmed[view[wa]] if n else np.zeros(0, bool)
-    np.add.at(fresh, wa[keep_a], ea["fresh"][keep_a])
-    np.add.at(fresh, wb, eb["fresh"])
-    offsets, flat = _unpadded(rows)
-    arrays = {"view": view, "pattern_offsets": offsets, "pattern_tokens": flat,
-              "count": _summed(n, wa, wb, ea["count"], eb["count"]),
-              "last_seen": _recency(n, wa, wb, ea["last_seen"], eb["last_seen"], a.clock),
-              "fresh": fresh}
-    return PatternLibrary.from_export(arrays, tokens=tokens, clock=a.clock + b.clock,
-                                      view_names=names, mixer=mixer, max_length=a.max_length,
-                                      max_patterns=a.max_patterns,
-                                      vocabulary=vocabulary if a.factored else None,
-                                      has_actions=a.has_actions)
+    ea = {**ea, "fresh": np.where(alarmed[ea["view"]], 0, ea["fresh"]) if len(ea["view"]) else ea["fresh"]}
+    merged = PatternLibrary.from_export(ea, tokens=tokens, clock=a.clock + b.clock,
+                                        view_names=names, mixer=mixer, max_length=a.max_length,
+                                        max_patterns=a.max_patterns,
+                                        vocabulary=vocabulary if a.factored else None,
+                                        has_actions=a.has_actions)
+    if len(eb["view"]):
+        eb = {**eb, "view": view_map[eb["view"]], "pattern_tokens": token_map[eb["pattern_tokens"]]}
+    merged.add_export(eb, shift=a.clock)
+    return merged
 
 
 def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
