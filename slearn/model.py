@@ -73,8 +73,38 @@ class SequenceModel:
         return [(value, p) for value, p in prediction.get(ITEM, [])]
 
     def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
-        """:meth:`predict` for many histories."""
-        return [self.predict(h) for h in histories]
+        """:meth:`predict` for many histories, in one compiled call (the same answers)."""
+        if self.library is None:
+            return [None for _ in histories]
+        steps: list = []
+        starts, ends = [], []
+        for history in histories:
+            starts.append(len(steps))
+            steps.extend(({}, {ITEM: item}) for item in self._tail(history))
+            ends.append(len(steps))
+            steps.append(({}, {}))
+        if not ends:
+            return []
+        rows, unknown = self._lookup_steps(self.library, steps)
+        predictor = self._predictor_for(1)
+        batch = predictor.predict_batch(Episode.from_steps(rows), starts, ends, unknown)
+        names = self.library.view_names
+        view = next((i for i, name in enumerate(names) if name in (ITEM, "*")), None)
+        if view is None:
+            return [None] * len(ends)
+        # What _named reads from predictor.prediction(batch, i), without building it: the
+        # first ranked outcome of a view that did not abstain, if it is one item.
+        out: list[Hashable | None] = []
+        item_of: dict[int, Hashable | None] = {}
+        for token, top in zip(batch.token[:, view].tolist(), batch.top[:, view, 0].tolist()):
+            if token < 0 or top < 0:
+                out.append(None)
+                continue
+            if top not in item_of:
+                symbols = self.library.tokens.symbols(top)
+                item_of[top] = self.vocabulary.name(symbols[0])[1] if len(symbols) == 1 else None
+            out.append(item_of[top])
+        return out
 
     # --- the step form ------------------------------------------------------------------
     def learn_steps(self, steps: Iterable[Step]) -> None:
@@ -171,10 +201,15 @@ class SequenceModel:
         if self.library is None:
             return {}
         steps, unknown = self._lookup_steps(self.library, history + [(actions, {})])
+        prediction = self._predictor_for(k).predict_unknown(steps, unknown)
+        return self._named(prediction, k)
+
+    def _predictor_for(self, k: int) -> Predictor:
+        if self.library is None:
+            raise ParameterError("the model has learned nothing yet")
         if self._predictor is None or self._predictor.top_k != k:
             self._predictor = Predictor(self.library, top_k=k)
-        prediction = self._predictor.predict_unknown(steps, unknown)
-        return self._named(prediction, k)
+        return self._predictor
 
     def _lookup_steps(self, library: PatternLibrary | LiteralLibrary, steps: list) -> tuple[list, np.ndarray]:
         """Steps as symbols; a value never seen gets a symbol past the vocabulary."""

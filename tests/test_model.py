@@ -96,3 +96,23 @@ def test_the_literal_scoring_is_available():
     model = SequenceModel(scoring="literal", max_length=5)
     model.learn(TEXT)
     assert model.predict("the ca") == "t"
+
+
+@pytest.mark.parametrize("scoring", ["adaptive", "literal"])
+def test_predict_many_answers_what_predict_answers(scoring):
+    """One batched call, the same answers as one call per history: histories shorter and
+    longer than a context, empty, with items never seen, and a model still learning."""
+    import random
+
+    rng = random.Random(7)
+    model = SequenceModel(max_length=3, scoring=scoring)
+    assert model.predict_many(["ab"]) == [None]  # nothing learned yet
+    alphabet = "abcde"
+    for round_ in range(3):
+        for _ in range(20):
+            model.learn([rng.choice(alphabet[: 3 + round_]) for _ in range(rng.randint(1, 30))])
+        histories = [[rng.choice(alphabet + "xz") for _ in range(rng.randint(0, 8))] for _ in range(200)]
+        histories += [[], ["x"], ["z", "z"], list(alphabet) * 3]
+        assert model.predict_many(histories) == [model.predict(h) for h in histories]
+        assert model.predict_many(iter(histories[:5])) == [model.predict(h) for h in histories[:5]]
+    assert model.predict_many([]) == []

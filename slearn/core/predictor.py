@@ -149,11 +149,13 @@ class Predictor:
                                 self._single)
         return self._prediction(out, 0)
 
-    def predict_batch(self, episode: Episode, starts, ends) -> BatchPrediction:
+    def predict_batch(self, episode: Episode, starts, ends,
+                      unknown_views: np.ndarray | None = None) -> BatchPrediction:
         """Predict step ``ends[i]`` of ``episode`` from its steps ``starts[i]..ends[i] - 1``,
         for every ``i`` in one compiled call: query ``i`` is ``predict(episode.steps()[
         starts[i]:ends[i]], episode.step(ends[i])[0])`` (step ``ends[i]``'s observations
-        are ignored), and the answers are the same."""
+        are ignored), and the answers are the same. Symbols past the vocabulary are values
+        never seen, as in :meth:`predict_unknown`, with ``unknown_views`` their views."""
         starts, ends = np.asarray(starts, np.int64), np.asarray(ends, np.int64)
         if starts.shape != ends.shape or starts.ndim != 1:
             raise ParameterError("starts and ends must be two 1-D sequences of the same length")
@@ -161,9 +163,9 @@ class Predictor:
             raise ParameterError(f"queries need 0 <= starts <= ends < {len(episode)} (the episode's steps)")
         library = self.library
         if library.clock == 0 or not library.view_names or getattr(library, "streams", None) is None:
-            return self._batch_of_singles(episode, starts, ends)
+            return self._batch_of_singles(episode, starts, ends, unknown_views)
         self._refresh()
-        codes = library.encode(episode, intern=False)
+        codes = library.encode(episode, intern=False, unknown_views=unknown_views)
         out = self._run_queries(codes, starts, ends, _buffers(library, len(ends), self.top_k))
         return _batch(out, len(ends), self._n_views(), self.top_k)
 
@@ -245,13 +247,14 @@ class Predictor:
             found = self._symbols_of[token] = self.library.tokens.symbols(token)
         return found
 
-    def _batch_of_singles(self, episode: Episode, starts: np.ndarray, ends: np.ndarray) -> BatchPrediction:
+    def _batch_of_singles(self, episode: Episode, starts: np.ndarray, ends: np.ndarray,
+                          unknown_views: np.ndarray | None = None) -> BatchPrediction:
         """Libraries without view streams (the literal rule), or empty: query by query."""
         steps, n_views, k = episode.steps(), self._n_views(), self.top_k
         out = new_reports(len(ends) * n_views, k)
         table = self.library.tokens
         for i, (s, e) in enumerate(zip(starts.tolist(), ends.tolist())):
-            prediction = self.predict(steps[s:e], steps[e][0])
+            prediction = self.predict_unknown(steps[s:e] + [(steps[e][0], ())], unknown_views)
             for v, view in enumerate(prediction.views):
                 r = i * n_views + v
                 if view.abstained:
