@@ -19,18 +19,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 
 import numpy as np
+from bench_core import resident_bytes
 
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Episode
 
 
 def rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    return resident_bytes() / 2**20
 
 
 def pieces(events: int, piece: int, vocabulary: int, seed: int = 0):

@@ -116,3 +116,5 @@ def test_predict_many_answers_what_predict_answers(scoring):
         assert model.predict_many(histories) == [model.predict(h) for h in histories]
         assert model.predict_many(iter(histories[:5])) == [model.predict(h) for h in histories[:5]]
     assert model.predict_many([]) == []
+    with pytest.raises(ParameterError, match="not hashable"):
+        model.predict_many([["a", ["b"]]])

@@ -20,6 +20,7 @@ import numpy as np
 
 from slearn.core import hashtable, hashtrie
 from slearn.core._jit import helper, kernel
+from slearn.core.context_tree import ranks_above
 from slearn.core.hashtable import EMPTY, doubled, probe
 from slearn.core.hashtrie import child_or_add, path_tokens
 
@@ -121,16 +122,6 @@ def _credit(index, weight, seen, outcome_of, total, best, newest, node, outcome,
     w = newest[node]
     if w == -1 or seen[e] > seen[w] or (seen[e] == seen[w] and outcome < outcome_of[w]):
         newest[node] = e
-
-
-@helper
-def ranks_above(weight, seen, outcome_of, a, b):
-    """Whether entry ``a`` ranks above ``b``: weight, then recency, then smaller outcome."""
-    if weight[a] != weight[b]:
-        return weight[a] > weight[b]
-    if seen[a] != seen[b]:
-        return seen[a] > seen[b]
-    return outcome_of[a] < outcome_of[b]
 
 
 @helper

@@ -112,9 +112,8 @@ class Predictor:
         self._step_codes: dict = {}  # step -> (action token, views, tokens), see _cached_codes
         self._acted: set = set()     # symbols the cached steps use as actions,
         self._observed: set = set()  # and as observations
-        self._no_start = np.zeros(1, np.int64)
-        self._q_offsets = np.zeros(64, np.int64)
-        self._ends = [np.array([n], np.int64) for n in range(64)]
+        self._q_offsets = np.zeros(64, np.int64)  # the query step's report layout, scratch
+        self._first, self._last = np.zeros(1, np.int64), np.zeros(1, np.int64)  # one query's bounds
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -126,13 +125,7 @@ class Predictor:
             self._refresh()
             codes = self._cached_codes(history, actions)
             if codes is not None:
-                n = len(codes.action)
-                if n + 1 > len(self._q_offsets):
-                    self._q_offsets = np.zeros(2 * n + 2, np.int64)
-                _predict_queries(self._table(self._single), codes.action, codes.offsets, codes.view,
-                                 codes.token, self._no_start, self._end(n - 1), self._q_offsets,
-                                 *self._single[4])
-                return self._single_prediction(self._single[1])
+                return self._single_prediction(self._run_single(codes))
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
     def predict_unknown(self, steps: list[Step], unknown_views: np.ndarray | None = None) -> Prediction:
@@ -145,9 +138,7 @@ class Predictor:
             return self._literal(steps)
         self._refresh()
         codes = self._encode_steps(steps, unknown_views)
-        out = self._run_queries(codes, np.zeros(1, np.int64), np.array([len(steps) - 1], np.int64),
-                                self._single)
-        return self._prediction(out, 0)
+        return self._single_prediction(self._run_single(codes))
 
     def predict_batch(self, episode: Episode, starts, ends,
                       unknown_views: np.ndarray | None = None) -> BatchPrediction:
@@ -190,11 +181,22 @@ class Predictor:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
         ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
         the predictor: allocating them costs more than the query)."""
-        scratch, out, q_view, q_token, run = buffers
         span = int((ends - starts).max()) + 2 if len(ends) else 2
-        _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token, starts, ends,
-                         np.zeros(span, np.int64), *run)
-        return out
+        return self._run(codes, starts, ends, buffers, span)
+
+    def _run_single(self, codes: StepCodes) -> Reports:
+        """The last step of ``codes`` predicted from the steps before it (one query)."""
+        n = len(codes.action)
+        self._last[0] = n - 1
+        return self._run(codes, self._first, self._last, self._single, n + 1)
+
+    def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: tuple,
+             span: int) -> Reports:
+        if span > len(self._q_offsets):
+            self._q_offsets = np.zeros(2 * span, np.int64)
+        _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token,
+                         starts, ends, self._q_offsets, *buffers[4])
+        return buffers[1]
 
     def _table(self, buffers: tuple) -> np.ndarray:
         """The address table of the library's state and ``buffers``. The single query's
@@ -211,16 +213,9 @@ class Predictor:
             self._single_state, self._single_table = state, table
         return table
 
-    def _prediction(self, out: Reports, i: int) -> Prediction:
-        names, n_views = self.library.view_names, self._n_views()
-        return Prediction([self._view_of(v, names[v], int(out.predicted[i * n_views + v]),
-                                         float(out.score[i * n_views + v]),
-                                         int(out.length[i * n_views + v]), int(out.kind[i * n_views + v]),
-                                         out.top[i * n_views + v], out.top_p[i * n_views + v])
-                           for v in range(n_views)])
-
     def _single_prediction(self, out: Reports) -> Prediction:
-        """``_prediction(out, 0)``, reading each array once."""
+        """The one query of the single-query buffers' reports as a :class:`Prediction`
+        (each array read once)."""
         symbols, names = self._symbols, self.library.view_names
         views = []
         for v, (token, score, length, kind, top, top_p) in enumerate(zip(
@@ -359,9 +354,6 @@ class Predictor:
         self._acted.update(acts)
         self._observed.update(obs)
         return code
-
-    def _end(self, n: int) -> np.ndarray:
-        return self._ends[n] if n < len(self._ends) else np.array([n], np.int64)
 
     def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
         """Steps as codes; ``view_of`` maps symbols to views (``None``: one joint view)."""
