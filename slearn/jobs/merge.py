@@ -11,15 +11,17 @@ those of one run (a property test checks it against the run).
 The scoring state depends on the order of predictions, so it follows a rule:
 
 * the expert weights and the change detector of a view are ``b``'s when ``b`` predicted
-  anything in the view (they were trained on the latest data), else ``a``'s;
+  anything in the view (they were trained on the latest data), else ``a``'s; ``b``'s
+  detector clocks (its tests' last zeros, its epoch's start) move to the run's clock;
 * fresh counts: when ``b``'s detector raised an alarm in a view, the run's current epoch
   began inside ``b``, so the view's fresh counts are ``b``'s and its epoch is the sum of
   both; otherwise the epoch that was current at the end of ``a`` went on through ``b``,
   and fresh counts add.
 
-The held-out accuracy of a merged library against the one-run library is measured in
-``bench/bench_merge.py``. With forgetting (``max_patterns``) the merge keeps every
-pattern of both, then forgets down to the bound (which one run would have done earlier).
+The held-out accuracy of a merged library against the one-run library is measured by
+``bench/bench_ray.py`` (its ``--merge-tree`` run, against one process). With forgetting
+(``max_patterns``) the merge keeps every pattern of both, then forgets down to the bound
+(which one run would have done earlier).
 Literal libraries (the paper's parse rule) merge their parse counts the same way; their
 parses are not those of one run.
 """
