@@ -82,7 +82,7 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
                    len(tree.node_slots), len(tree.entry_slots))
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
-                     mixer._THRESHOLD,
+                     float(np.log(1.0 / mixer.FALSE_ALARM)),
                      float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]))
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,

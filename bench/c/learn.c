@@ -7,12 +7,10 @@
  * that did not report shows its last one again). Before an observation is appended, every
  * context of 1..K tokens just before it is looked up in a tree read backwards from the
  * view's root; the experts of slearn/core/mixer.py (frequent, recent and fresh outcome of each
- * context) are weighed by Hedge with sleeping experts and a spread bound, Bernoulli
- * CUSUM tests (one per alternative drop of the hit probability) watch the trusted frequency
- * expert (each prediction's hit probability from PPM-C's estimate in its context), an alarm
- * seeds fresh counts from the occurrences since the estimated change point, and every
- * context counts one more occurrence of the observation (count, last_seen, fresh count
- * with lazy epoch reset).
+ * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
+ * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
+ * PPM-C's estimate in its context), and every context counts one more
+ * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
  *
  * Hash tables hold record ids; a record's key is (parent, token) for nodes and
  * (owner, outcome) for entries, hashed as slearn/core/hashtable.py does. Capacities are given
@@ -28,14 +26,6 @@
 #define RECENT 1
 #define FRESH 2
 #define KINDS 3
-#define N_TESTS 3  /* slearn/core/mixer.py: DROPS and the detector's fields */
-static const double DROPS[N_TESTS] = {2.0, 8.0, 32.0};
-#define CUSUM 0
-#define CALM N_TESTS
-#define MISSES (2 * N_TESTS)
-#define TRIALS (2 * N_TESTS + 1)
-#define START (2 * N_TESTS + 2)
-#define DETECTOR_FIELDS (2 * N_TESTS + 3)
 
 typedef struct {
     int32_t *parent, *token, *first, *best, *newest, *fresh_best, *epoch, *node_slots;
@@ -95,19 +85,6 @@ static void refresh(tree_t *t, int32_t node, int32_t current) {
     t->epoch[node] = current;
 }
 
-static void seed_fresh(tree_t *t, int32_t view, int32_t current, int64_t start) {
-    for (int32_t e = 0; e < t->size[1]; e++) {
-        if (t->last_seen[e] < start) continue;
-        int32_t node = t->owner[e], root = node;
-        while (t->parent[root] != -1) root = t->parent[root];
-        if (t->token[root] != view) continue;
-        refresh(t, node, current);
-        t->fresh[e] = 1;
-        int32_t b = t->fresh_best[node];
-        if (b == -1 || t->last_seen[e] > t->last_seen[b]) t->fresh_best[node] = e;
-    }
-}
-
 static void credit(tree_t *t, int32_t e, int32_t node, int64_t clock) {
     t->count[e] += 1;
     t->last_seen[e] = clock;
@@ -165,22 +142,16 @@ static double hit_probability(const tree_t *t, const int64_t *weight, int32_t no
     return total > 0 ? (double)weight[e] / (double)(total + distinct) : 0.0;
 }
 
-static int detect(double *w, double *det, int K, int hit, double p_hit, int64_t clock,
+static int detect(double *w, double *det, int K, int hit, double p_hit,
                   double threshold, double fresh_tie) {
-    det[MISSES] += hit ? 0.0 : 1.0;
-    det[TRIALS] += 1.0;
-    int alarm = -1;
-    for (int i = 0; i < N_TESTS; i++) {
-        double step = hit ? -log(DROPS[i]) : log((1.0 - p_hit / DROPS[i]) / (1.0 - p_hit));
-        double x = det[CUSUM + i] + step > 0.0 ? det[CUSUM + i] + step : 0.0;
-        det[CUSUM + i] = x;
-        if (x == 0.0) det[CALM + i] = (double)clock + 1.0;
-        if (x >= threshold && (alarm < 0 || x > det[CUSUM + alarm])) alarm = i;
-    }
-    if (alarm < 0) return 0;
-    det[START] = det[CALM + alarm];
-    for (int i = 0; i < N_TESTS; i++) det[CUSUM + i] = 0.0, det[CALM + i] = (double)clock + 1.0;
-    det[MISSES] = det[TRIALS] = 0.0;
+    double q0 = 1.0 - p_hit;
+    double q1 = 0.5 * (1.0 + q0);
+    double step = hit ? log((1.0 - q1) / (1.0 - q0)) : log(q1 / q0);
+    det[0] = det[0] + step > 0.0 ? det[0] + step : 0.0;
+    det[1] += hit ? 0.0 : 1.0;
+    det[2] += 1.0;
+    if (det[0] < threshold) return 0;
+    det[0] = det[1] = det[2] = 0.0;
     for (int k = 0; k < K; k++) {
         double a = w[k * KINDS + FREQUENT], b = w[k * KINDS + FRESH];
         w[k * KINDS + FRESH] = (a > b ? a : b) * fresh_tie;
@@ -234,12 +205,9 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 if (kt > 0) {
                     int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];
                     double p_hit = hit_probability(t, ep > 0 ? t->fresh : t->count, nd, b);
-                    double *det = &detector[(int64_t)v * DETECTOR_FIELDS];
-                    if (detect(w, det, K, t->outcome[b] == x, p_hit, clock, p->threshold,
-                               p->fresh_tie)) {
+                    if (detect(w, &detector[v * 3], K, t->outcome[b] == x, p_hit, p->threshold,
+                               p->fresh_tie))
                         epoch[v] += 1;
-                        seed_fresh(t, v, epoch[v], (int64_t)det[START]);
-                    }
                 }
                 ep = epoch[v];
                 for (int k = 1; k <= n; k++) {

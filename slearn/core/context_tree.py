@@ -191,27 +191,6 @@ def refresh(first, nxt, fresh, fresh_best, epoch, node, current):
 
 
 @helper
-def seed_fresh(parent, token, first, nxt, fresh, fresh_best, epoch, owner, last_seen, size, view, current, start):
-    """Open epoch ``current`` of ``view`` at clock ``start``: every entry of the view seen
-    since ``start`` counts one fresh occurrence (its count since then is not kept; at
-    least one it is), every other entry of the nodes they belong to none."""
-    for e in range(size[1]):
-        if last_seen[e] < start:
-            continue
-        node = owner[e]
-        root = node
-        while parent[root] != -1:
-            root = parent[root]
-        if token[root] != view:
-            continue
-        refresh(first, nxt, fresh, fresh_best, epoch, node, current)
-        fresh[e] = 1
-        b = fresh_best[node]
-        if b == -1 or last_seen[e] > last_seen[b]:
-            fresh_best[node] = e
-
-
-@helper
 def credit(count, last_seen, fresh, best, newest, fresh_best, e, node, clock):
     """Count one occurrence of entry ``e`` (of ``node``) at ``clock``."""
     count[e] += 1

@@ -16,29 +16,25 @@ Weights stay within ``SPREAD`` of the leader, so an expert that was poor for a l
 time can take over after a few dozen mistakes of the leader: the mixture tracks the best
 expert when it changes (a switch of dynamics), as fixed-share does.
 
-Epochs. Counts accumulated before a change of dynamics mislead frequency forever. Bernoulli
-CUSUM tests (Page 1954) watch the most trusted frequency expert: each of its predictions
-has its own hit probability ``p`` (PPM's method C: the outcome's count over the context's
-total plus one escape count per distinct outcome), and test ``i`` accumulates the
-log-likelihood ratio of "the hit probability dropped to ``p / DROPS[i]``" against ``p``, so a
-miss where the context is nearly certain weighs much, a miss where it is a coin toss
-little. One test per drop in :data:`DROPS` (halved, as a slow drift does; near zero, as a
-reversal does) detects each kind of change about as fast as a test built for it alone.
-An alarm is raised when a test passes ``ln(len(DROPS) / FALSE_ALARM)`` (so the false-alarm
-rate per prediction of all tests together is at most ``FALSE_ALARM`` when the shares are
-calibrated). An alarm opens a new epoch, which starts at the alarming test's estimate of
-the change point (the step after its statistic was last zero, Page's estimate): fresh
-counts restart from the occurrences since then (:func:`slearn.core.context_tree.seed_fresh`),
-and the ``FRESH`` experts start from the weights of the frequency experts of the same
-length, so they speak as soon as they are as good. A false alarm costs little, because
-the all-time experts keep their weights.
+Epochs. Counts accumulated before a change of dynamics mislead frequency forever. A
+Bernoulli CUSUM test (Page 1954) watches the most trusted frequency expert: each of its
+predictions has its own expected miss rate ``q0`` (one minus the probability PPM's method C
+gives its outcome in its context: the outcome's count over the context's total plus one
+escape count per distinct outcome), and the test accumulates the
+log-likelihood ratio of ``q1 = (1 + q0) / 2`` against it, so a miss where the context is
+nearly certain weighs much, a miss where it is a coin toss little. It raises an alarm past
+``ln(1 / FALSE_ALARM)`` (the false-alarm rate per prediction is at most ``FALSE_ALARM``
+when the shares are calibrated). An alarm opens a new epoch:
+fresh counts restart from zero (:mod:`slearn.core.context_tree`), and the ``FRESH`` experts
+start from the weights of the frequency experts of the same length, so they speak as
+soon as they are as good. A false alarm costs little, because the all-time experts keep
+their weights.
 
 Ties go to ``FRESH``, then ``RECENT``, then shorter contexts: with no evidence yet, the
 latest and simplest explanation speaks. No constant is tuned to a data set:
 ``ETA`` is Hedge's rate for tens of experts over ~10^4 predictions, ``SPREAD`` bounds the
-catch-up to ``SPREAD / ETA`` net mistakes, ``FALSE_ALARM`` is a rate and ``DROPS`` a
-geometric grid of alternatives; the measured tables in ``bench/`` are flat over a factor
-of two in each.
+catch-up to ``SPREAD / ETA`` net mistakes, and ``FALSE_ALARM`` is a rate; the measured
+tables in ``bench/`` are flat over a factor of two in each.
 """
 
 from __future__ import annotations
@@ -55,20 +51,12 @@ N_KINDS = 3
 ETA = 0.1
 SPREAD = 5.0
 FALSE_ALARM = 1e-6
+_THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
 _BETA = float(np.exp(-ETA))
 _FLOOR = float(np.exp(-SPREAD))
 _TIE = np.array([1.0, 1.0 + 2e-9, 1.0 + 4e-9])  # prior weight per kind: FRESH, then RECENT, win ties
 ASLEEP = 0.0  # the weight of FRESH experts before the first epoch
-DROPS = (2.0, 8.0, 32.0)  # the tests' alternatives: the expert's hit probability over each
-N_TESTS = len(DROPS)
-# a view's detector: per test its statistic, per test the clock after its last zero, then
-# misses and trials since the epoch began, and the clock the epoch began at
-CUSUM, CALM = 0, N_TESTS
-MISSES, TRIALS, START = 2 * N_TESTS, 2 * N_TESTS + 1, 2 * N_TESTS + 2
-DETECTOR_FIELDS = 2 * N_TESTS + 3
-CLOCK_FIELDS = (*range(CALM, CALM + N_TESTS), START)
-_THRESHOLD = float(np.log(N_TESTS / FALSE_ALARM))
-_DROPS = np.array(DROPS)
+CUSUM, MISSES, TRIALS = 0, 1, 2
 
 
 class Mixer(NamedTuple):
@@ -76,12 +64,12 @@ class Mixer(NamedTuple):
 
     ``weight[v, k - 1, kind]`` is the weight of expert ``(k, kind)`` of view ``v``, relative
     to the view's leader (so in ``[exp(-SPREAD), 1]``, or ``ASLEEP``); ``detector[v]`` holds
-    the view's tests (fields ``CUSUM`` .. ``START``, :data:`DETECTOR_FIELDS` in all);
-    ``epoch[v]`` counts the view's alarms.
+    ``(cusum, misses, trials)`` of the view's test since its epoch began; ``epoch[v]``
+    counts the view's alarms.
     """
 
     weight: np.ndarray    # float64 (views, K, 3)
-    detector: np.ndarray  # float64 (views, DETECTOR_FIELDS)
+    detector: np.ndarray  # float64 (views, 3)
     epoch: np.ndarray     # int32 (views,)
 
 
@@ -90,7 +78,7 @@ def new_mixer(views: int, max_context: int) -> Mixer:
     weight = np.empty((views, max_context, N_KINDS))
     weight[:] = (_TIE / _TIE.max()) * (1.0 - 1e-12 * np.arange(max_context))[:, None]
     weight[:, :, FRESH] = ASLEEP
-    return Mixer(weight, np.zeros((views, DETECTOR_FIELDS)), np.zeros(views, np.int32))
+    return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32))
 
 
 def with_views(mixer: Mixer, views: int) -> Mixer:
@@ -100,25 +88,6 @@ def with_views(mixer: Mixer, views: int) -> Mixer:
         return mixer
     extra = new_mixer(views - have, mixer.weight.shape[1])
     return Mixer(*(np.concatenate((a, b)) for a, b in zip(mixer, extra)))
-
-
-def shifted_detector(detector: np.ndarray, shift: int) -> np.ndarray:
-    """``detector`` with its clocks moved ``shift`` steps later (a library learned after
-    another, on the merged clock)."""
-    out = detector.copy()
-    out[:, list(CLOCK_FIELDS)] += shift
-    return out
-
-
-def upgraded_detector(old: np.ndarray, clock: int) -> np.ndarray:
-    """A detector of library format 2 in this layout. Format 2 had one test, ``(cusum,
-    misses, trials)``, the first of :data:`DROPS`; it kept no clocks, so they are taken as
-    ``clock`` (the library's): the next alarm counts fresh occurrences from loading on."""
-    out = np.zeros((len(old), DETECTOR_FIELDS))
-    out[:, CUSUM] = old[:, 0]
-    out[:, MISSES], out[:, TRIALS] = old[:, 1], old[:, 2]
-    out[:, list(CLOCK_FIELDS)] = clock
-    return out
 
 
 @helper
@@ -192,33 +161,24 @@ def trusted_length(w, v, cand, n, epoch):
 
 
 @helper
-def detect(w, det, v, hit, p_hit, clock):
-    """Feed one prediction (at ``clock``) of the trusted frequency expert to view ``v``'s
-    CUSUM tests.
+def detect(w, det, v, hit, p_hit):
+    """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test.
 
     ``p_hit`` is the expert's own probability of being right (see the module docstring):
-    the tests compare the misses with the misses expected context by context, so easy and
-    hard contexts do not pass for a change. Returns whether a test raised an alarm (and if
-    so, resets them all, writes the change point in ``START`` and starts the ``FRESH``
-    experts from their frequency twins).
+    the test compares the misses with the
+    misses expected context by context, so easy and hard contexts do not pass for a change.
+    Returns whether the test raised an alarm (and if so, resets it and starts the
+    ``FRESH`` experts from their frequency twins).
     """
+    q0 = 1.0 - p_hit
+    q1 = 0.5 * (1.0 + q0)
+    step = np.log((1.0 - q1) / (1.0 - q0)) if hit else np.log(q1 / q0)
+    det[v, CUSUM] = max(0.0, det[v, CUSUM] + step)
     det[v, MISSES] += 0.0 if hit else 1.0
     det[v, TRIALS] += 1.0
-    alarm = -1
-    for i in range(N_TESTS):
-        step = -np.log(_DROPS[i]) if hit else np.log((1.0 - p_hit / _DROPS[i]) / (1.0 - p_hit))
-        x = max(0.0, det[v, CUSUM + i] + step)
-        det[v, CUSUM + i] = x
-        if x == 0.0:
-            det[v, CALM + i] = clock + 1.0  # a change, if any, came after this step
-        if x >= _THRESHOLD and (alarm < 0 or x > det[v, CUSUM + alarm]):
-            alarm = i
-    if alarm < 0:
+    if det[v, CUSUM] < _THRESHOLD:
         return False
-    det[v, START] = det[v, CALM + alarm]
-    for i in range(N_TESTS):
-        det[v, CUSUM + i] = 0.0
-        det[v, CALM + i] = clock + 1.0
+    det[v, CUSUM] = 0.0
     det[v, MISSES] = 0.0
     det[v, TRIALS] = 0.0
     for k in range(w.shape[1]):

@@ -31,9 +31,8 @@ from slearn.core.context_tree import (
     node_total,
     ranks_above,
     refresh,
-    seed_fresh,
 )
-from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, START, detect, select, trusted_length, update
+from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core.views import NO_TOKEN
 
 
@@ -165,10 +164,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                         fresh_counts = ep > 0
                         b = fresh_best[nd] if fresh_counts else best[nd]
                         p_hit = hit_probability(first, nxt, fresh if fresh_counts else count, nd, b)
-                        if detect(weights, detector, v, outcome[b] == x, p_hit, clock[0]):
+                        if detect(weights, detector, v, outcome[b] == x, p_hit):
                             epoch[v] += 1
-                            seed_fresh(parent, tok_of, first, nxt, fresh, fresh_best, node_epoch, owner,
-                                       last_seen, size, v, epoch[v], np.int64(detector[v, START]))
                     ep = epoch[v]
                     for k in range(1, n + 1):
                         nd = nodes[k]

@@ -1,6 +1,6 @@
 """Pattern libraries on disk: one Parquet file holds a library, its vocabulary and its spec.
 
-Layout (format ``slearn-library``, version 3; version 2 is read and upgraded). Four tables share one schema; a row
+Layout (format ``slearn-library``, version 2). Four tables share one schema; a row
 belongs to the table named in its ``table`` column, each table has its own row groups
 (written in this order) and the columns of the other tables are null::
 
@@ -16,8 +16,7 @@ belongs to the table named in its ``table`` column, each table has its own row g
     token_kind      int8           token       row t is token t: 0 observation, 1 action
     token_symbols   list<int32>    token       the token's symbols
     view_epoch      int32          view        alarms of the view's change detector
-    view_detector   list<float64>  view        its tests (slearn.core.mixer.DETECTOR_FIELDS;
-                                               format 2: cusum, misses, trials of one test)
+    view_detector   list<float64>  view        its test: cusum, misses, trials
     view_weights    list<float64>  view        expert weights over the leader, (context length, kind)
     view            int32          pattern     the view the pattern belongs to
     pattern         list<int32>    pattern     tokens: the context, oldest first, then the outcome
@@ -54,7 +53,7 @@ import pyarrow.parquet as pq
 
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import DETECTOR_FIELDS, Mixer, upgraded_detector
+from slearn.core.mixer import Mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError, LibraryFormatError
@@ -258,7 +257,7 @@ def _view_table(library) -> pa.Table:
     return _table("view", n, {
         "channel": pa.array(library.view_names, pa.string()),
         "view_epoch": pa.array(mixer.epoch[:n], pa.int32()),
-        "view_detector": _list_array(np.arange(n + 1) * DETECTOR_FIELDS, mixer.detector[:n].ravel(),
+        "view_detector": _list_array(np.arange(n + 1) * 3, mixer.detector[:n].ravel(),
                                      Path("<views>"), _FLOAT64),
         "view_weights": _list_array(np.arange(n + 1) * weights.shape[1], weights.ravel(),
                                     Path("<views>"), _FLOAT64),
@@ -459,21 +458,18 @@ def _read_tokens(parquet: pq.ParquetFile, groups: list[int], n_symbols: int, pat
     return TokenTable.from_export(offsets, symbols, kinds)
 
 
-def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, version: int,
-                clock: int, path: Path) -> tuple[list[str], Mixer]:
+def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int,
+                path: Path) -> tuple[list[str], Mixer]:
     table = _read(parquet, groups, ["channel", "view_epoch", "view_detector", "view_weights"])
     names = table.column("channel").to_pylist()
     n = len(names)
     _, detector = _list_parts(table.column("view_detector"), "view_detector", path)
     _, weights = _list_parts(table.column("view_weights"), "view_weights", path)
-    fields = 3 if version == 2 else DETECTOR_FIELDS
-    if len(detector) != fields * n or len(weights) != 3 * max_context * n or None in names:
+    if len(detector) != 3 * n or len(weights) != 3 * max_context * n or None in names:
         raise LibraryFormatError(f"{path}: the view table does not match max_length {max_context}")
     epoch = _numbers(table.column("view_epoch"), "view_epoch", path).astype(np.int32)
-    detector = detector.astype(np.float64).reshape(n, fields)
-    if version == 2:
-        detector = upgraded_detector(detector, clock)
-    return names, Mixer(weights.astype(np.float64).reshape(n, max_context, 3), detector, epoch)
+    return names, Mixer(weights.astype(np.float64).reshape(n, max_context, 3),
+                        detector.astype(np.float64).reshape(n, 3), epoch)
 
 
 def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
@@ -510,7 +506,7 @@ def load_library(path: str | os.PathLike) -> LoadedLibrary:
         literal = params.get("scoring") == "literal"
         arrays = _read_patterns(parquet, groups["pattern"], literal, len(tokens), path)
         library = (_literal(arrays, tokens, facts, params, path) if literal else
-                   _occurrence(parquet, groups, arrays, tokens, vocabulary, doc, path))
+                   _occurrence(parquet, groups, arrays, tokens, vocabulary, facts, params, path))
         library.forgotten = int(facts["forgotten"])
         spec = Spec.from_dict(doc["spec"], str(path)) if doc["spec"] is not None else None
     del arrays, parquet
@@ -528,13 +524,11 @@ def _literal(arrays, tokens: TokenTable, facts: dict, params: dict, path: Path) 
                                       params["max_patterns"])
 
 
-def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabulary, doc: dict,
-                path: Path) -> PatternLibrary:
-    params, facts = doc["params"], doc["library"]
+def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabulary, facts: dict,
+                params: dict, path: Path) -> PatternLibrary:
     max_length, has_actions = int(params["max_length"]), bool(params["has_actions"])
     max_context = 2 * max_length if has_actions else max_length
-    names, mixer = _read_views(parquet, groups["view"], max_context, int(doc["version"]),
-                               int(facts["clock"]), path)
+    names, mixer = _read_views(parquet, groups["view"], max_context, path)
     lengths = np.diff(arrays["pattern_offsets"])
     views = arrays["view"]
     if len(lengths) and (lengths.min() < 2 or lengths.max() > max_context + 1

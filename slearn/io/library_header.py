@@ -27,8 +27,7 @@ from slearn.core.library import MAX_PATTERNS as MAX_BOUND
 from slearn.errors import LibraryFormatError, SpecError
 
 FORMAT_NAME = "slearn-library"
-FORMAT_VERSION = 3
-OLDEST_VERSION = 2  # format 2 is read and upgraded (slearn.io.library_file)
+FORMAT_VERSION = 2
 TABLES = ("vocabulary", "token", "view", "pattern")
 
 MAX_HEADER_BYTES = 64 << 20
@@ -182,11 +181,10 @@ def validate_header(doc: Any, path: str | PathLike) -> None:
     if version > FORMAT_VERSION:
         raise LibraryFormatError(f"{path}: library format version {version} is newer than this "
                                  f"slearn {__version__} reads (up to {FORMAT_VERSION}): upgrade slearn")
-    if version < OLDEST_VERSION:
+    if version < FORMAT_VERSION:
         raise LibraryFormatError(f"{path}: library format version {version} (slearn 0.1) counted "
-                                 f"patterns only at parse boundaries; this slearn reads formats "
-                                 f"{OLDEST_VERSION}-{FORMAT_VERSION}: learn the logs again with "
-                                 "`slearn learn`")
+                                 f"patterns only at parse boundaries; this slearn reads format "
+                                 f"{FORMAT_VERSION}: learn the logs again with `slearn learn`")
     if _depth(doc) > MAX_DEPTH:
         raise _error(path, f"the header nests deeper than {MAX_DEPTH} levels")
     problem = _problem(doc, HEADER, "", version) or _consistency(doc)

@@ -36,7 +36,7 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import DETECTOR_FIELDS, Mixer, new_mixer, shifted_detector
+from slearn.core.mixer import Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError, SpecError
@@ -215,7 +215,7 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
     """The views' scoring state, and which views had an alarm in ``b``."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
-    weights, detector = np.zeros((n, k, 3)), np.zeros((n, DETECTOR_FIELDS))
+    weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
     epoch = np.zeros(n, np.int32)
     alarmed = np.zeros(n, bool)
     if ma is not None:
@@ -223,10 +223,9 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
     if mb is not None:
         untrained = new_mixer(1, k).weight[0]
-        b_detector = shifted_detector(mb.detector, a.clock)  # b's clocks on the run's clock
         for i, j in enumerate(view_map.tolist()):
             if not np.array_equal(mb.weight[i], untrained):
-                weights[j], detector[j] = mb.weight[i], b_detector[i]
+                weights[j], detector[j] = mb.weight[i], mb.detector[i]
             alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
     return Mixer(weights, detector, epoch), alarmed
