@@ -11,8 +11,7 @@ those of one run (a property test checks it against the run).
 The scoring state depends on the order of predictions, so it follows a rule:
 
 * the expert weights and the change detector of a view are ``b``'s when ``b`` predicted
-  anything in the view (they were trained on the latest data), else ``a``'s; ``b``'s
-  detector clocks (its tests' last zeros, its epoch's start) move to the run's clock;
+  anything in the view (they were trained on the latest data), else ``a``'s;
 * fresh counts: when ``b``'s detector raised an alarm in a view, the run's current epoch
   began inside ``b``, so the view's fresh counts are ``b``'s and its epoch is the sum of
   both; otherwise the epoch that was current at the end of ``a`` went on through ``b``,
