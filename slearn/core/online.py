@@ -134,17 +134,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                         break
                     nodes[k] = node
                     n = k
-                m = 0
-                for k in range(1, n + 1):
-                    nd = nodes[k]
-                    if first[nd] == -1:
-                        break
-                    cand[k, FREQUENT] = outcome[best[nd]]
-                    cand[k, RECENT] = outcome[newest[nd]]
-                    fb = fresh_best[nd]
-                    fresh_ok = ep > 0 and node_epoch[nd] == ep and fb != -1
-                    cand[k, FRESH] = outcome[fb] if fresh_ok else -1
-                    m = k
+                m = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, ep, cand)
                 if run.baselines:
                     out.persistence[r] = held[v]
                     if m > 0:
@@ -154,8 +144,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                         out.frequency[r] = cand[order, FREQUENT]
                 if run.record and m > 0:
                     k_sel, kind = select(weights, v, cand, m)
-                    _record(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
-                            count, fresh, last_seen, outcome, nodes, m, ranked)
+                    record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
+                                      count, fresh, last_seen, outcome, nodes, m, ranked)
                 if learn:
                     update(weights, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
@@ -176,7 +166,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
             filled[v] += 1
             held[v] = x
         if push_action:
-            _hold_silent(recent, filled, held, view, r0, r1, run.empty_observation)
+            hold_silent(recent, filled, held, view, r0, r1, run.empty_observation)
         if learn:
             clock[0] += 1
         step += 1
@@ -184,7 +174,26 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
 
 
 @helper
-def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
+def candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, ep, cand):
+    """The experts' outcomes of the contexts ``nodes[1..n]`` found (``cand[k, kind]``, -1:
+    asleep), up to the first context with no outcome yet; returns how many contexts have
+    outcomes. ``ep`` is the view's epoch (fresh counts of other epochs sleep)."""
+    m = 0
+    for k in range(1, n + 1):
+        nd = nodes[k]
+        if first[nd] == -1:
+            break
+        cand[k, FREQUENT] = outcome[best[nd]]
+        cand[k, RECENT] = outcome[newest[nd]]
+        fb = fresh_best[nd]
+        fresh_ok = ep > 0 and node_epoch[nd] == ep and fb != -1
+        cand[k, FRESH] = outcome[fb] if fresh_ok else -1
+        m = k
+    return m
+
+
+@helper
+def hold_silent(recent, filled, held, view, r0, r1, empty_observation):
     """Views that did not report after an action show their last observation again."""
     K = recent.shape[1]
     r = r0
@@ -197,8 +206,8 @@ def _hold_silent(recent, filled, held, view, r0, r1, empty_observation):
 
 
 @helper
-def _record(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
-            outcome, nodes, m, ranked):
+def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
+                      outcome, nodes, m, ranked):
     """Store the prediction of report ``r``: the outcome, its share, and the ranking.
     ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
     weight = fresh if kind == FRESH else count

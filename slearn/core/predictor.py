@@ -20,9 +20,9 @@ import numpy as np
 
 from slearn.core._jit import helper, kernel
 from slearn.core.addresses import address_table, cube, matrix, vector
-from slearn.core.context_tree import Tree
-from slearn.core.mixer import KINDS, Mixer
-from slearn.core.online import Reports, Run, _hold_silent, new_reports, run_codes
+from slearn.core.context_tree import Tree, child
+from slearn.core.mixer import KINDS, N_KINDS, Mixer, select
+from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_prediction
 from slearn.core.stream import Episode, Step
 from slearn.core.tokens import ACTION, OBSERVATION
 from slearn.core.views import NO_TOKEN, UNKNOWN, StepCodes, ViewState, new_view_state
@@ -112,7 +112,6 @@ class Predictor:
         self._step_codes: dict = {}  # step -> (action token, views, tokens), see _cached_codes
         self._acted: set = set()     # symbols the cached steps use as actions,
         self._observed: set = set()  # and as observations
-        self._q_offsets = np.zeros(64, np.int64)  # the query step's report layout, scratch
         self._first, self._last = np.zeros(1, np.int64), np.zeros(1, np.int64)  # one query's bounds
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
@@ -181,21 +180,17 @@ class Predictor:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
         ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
         the predictor: allocating them costs more than the query)."""
-        span = int((ends - starts).max()) + 2 if len(ends) else 2
-        return self._run(codes, starts, ends, buffers, span)
+        return self._run(codes, starts, ends, buffers)
 
     def _run_single(self, codes: StepCodes) -> Reports:
         """The last step of ``codes`` predicted from the steps before it (one query)."""
         n = len(codes.action)
         self._last[0] = n - 1
-        return self._run(codes, self._first, self._last, self._single, n + 1)
+        return self._run(codes, self._first, self._last, self._single)
 
-    def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: tuple,
-             span: int) -> Reports:
-        if span > len(self._q_offsets):
-            self._q_offsets = np.zeros(2 * span, np.int64)
+    def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: tuple) -> Reports:
         _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token,
-                         starts, ends, self._q_offsets, *buffers[4])
+                         starts, ends, *buffers[3])
         return buffers[1]
 
     def _table(self, buffers: tuple) -> np.ndarray:
@@ -203,12 +198,12 @@ class Predictor:
         is kept, with the arrays it points to, until the library replaces one of them (its
         tree grew, or it learned new views)."""
         library = self.library
-        state = (library.tree, library.mixer, library.clock_array)
+        state = (library.tree, library.mixer)
         single = buffers is self._single
         if single and all(a is b for a, b in zip(state, self._single_state)):
             return self._single_table
-        scratch, out, q_view, q_token, _ = buffers
-        table = _state_table(state[:2], scratch, out, q_view, q_token, state[2])
+        scratch, out, q_token, _ = buffers
+        table = _state_table(state, scratch, out, q_token)
         if single:
             self._single_state, self._single_table = state, table
         return table
@@ -282,7 +277,7 @@ class Predictor:
             library.prepare()
             self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
             self._step_codes, self._acted, self._observed = {}, set(), set()
-            self._single, self._single_state = _buffers(library, 1, self.top_k), (None, None, None)
+            self._single, self._single_state = _buffers(library, 1, self.top_k), (None, None)
 
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
@@ -416,12 +411,12 @@ def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]
 
 
 def _buffers(library, queries: int, top_k: int) -> tuple:
-    """Scratch streams, reports, the last steps' report layout and the run's scalars."""
+    """Scratch streams, reports, the query steps' outcome tokens and the run's scalars."""
     n_views = len(library.view_names)
     n = queries * n_views
     run = (library.has_actions, library.empty_action, library.empty_observation)
     return (tuple(new_view_state(n_views, library.max_context, library.streams.root)), new_reports(n, top_k),
-            np.tile(np.arange(n_views, dtype=np.int32), queries), np.full(n, UNKNOWN, np.int32), run)
+            np.full(n, UNKNOWN, np.int32), run)
 
 
 def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPrediction:
@@ -431,17 +426,15 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
                            out.top.reshape(shape + (top_k,)), out.top_p.reshape(shape + (top_k,)))
 
 
-_NO_BOUND = np.iinfo(np.int64).max  # frozen runs add no entries
 _STEP_CACHE = 1 << 16  # steps a predictor remembers the codes of
 
 
-def _state_table(state: tuple, scratch: tuple, out: Reports, q_view: np.ndarray, q_token: np.ndarray,
-                 clock: np.ndarray) -> np.ndarray:
+def _state_table(state: tuple, scratch: tuple, out: Reports, q_token: np.ndarray) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``_predict_queries``
     reads them: the tree's fields, the mixer's, the scratch streams', the reports', then
-    ``q_view``, ``q_token`` and the clock. The caller keeps them alive."""
+    ``q_token``. The caller keeps them alive."""
     tree, mixer = state
-    return address_table((*tree, *mixer, *scratch, *out, q_view, q_token, clock))
+    return address_table((*tree, *mixer, *scratch, *out, q_token))
 
 
 _TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
@@ -450,13 +443,14 @@ _QUERY = _OUT + len(Reports._fields)
 
 
 @kernel
-def _predict_queries(table, action, offsets, view, token, starts, ends, q_offsets, has_actions,
-                     empty_action, empty_observation):
-    """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, then
-    run step ``ends[i]`` (its action; every view reporting ``q_token``) through ``run_codes``,
-    as if the query's steps were an episode of their own. Rows ``i * views ..`` of ``out``.
-    The state comes as one address table (``_state_table``): numba wraps every array
-    argument on every call, which cost more than a small query."""
+def _predict_queries(table, action, offsets, view, token, starts, ends, has_actions, empty_action,
+                     empty_observation):
+    """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, as
+    if they were an episode of their own, then predict every view at step ``ends[i]`` (its
+    action pushed) as ``run_codes`` does frozen: rows ``i * views ..`` of ``out``, with
+    ``q_token`` as the outcome. The state comes as one address table (``_state_table``):
+    numba wraps every array argument on every call, which cost more than a small query;
+    for the same reason the query step is walked here, not by a call of ``run_codes``."""
     i32, i64, f64 = np.int32, np.int64, np.float64
     t, m, sc, o = _TREE, _MIXER, _SCRATCH, _OUT
     tree = Tree(vector(table, t, i32), vector(table, t + 1, i32), vector(table, t + 2, i32),
@@ -472,24 +466,49 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, q_offset
                   vector(table, o + 3, f64), vector(table, o + 4, f64), matrix(table, o + 5, i32),
                   matrix(table, o + 6, f64), vector(table, o + 7, np.bool_), vector(table, o + 8, i32),
                   vector(table, o + 9, i32), vector(table, o + 10, i32))
-    q_view, q_token = vector(table, _QUERY, i32), vector(table, _QUERY + 1, i32)
-    clock = vector(table, _QUERY + 2, i64)
-    run = Run(has_actions, empty_action, empty_observation, _NO_BOUND, False, True, False, True)
-    recent, filled, held = scratch.recent, scratch.filled, scratch.held
+    q_token = vector(table, _QUERY, i32)
+    parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
+    fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
+    outcome, count, last_seen, fresh, nxt = tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next
+    weights, epoch = mixer.weight, mixer.epoch
+    recent, filled, held, root = scratch.recent, scratch.filled, scratch.held, scratch.root
+    K = recent.shape[1]
     n_views = len(filled)
+    nodes = np.empty(K + 1, np.int32)
+    cand = np.full((K + 1, N_KINDS), -1, np.int32)
+    ranked = np.empty(out.top.shape[1], np.int32)
     for i in range(len(starts)):
         s, e = starts[i], ends[i]
         filled[:] = 0
         held[:] = NO_TOKEN
         for step in range(s, e):
             _replay_step(recent, filled, held, action[step], step > s, view, token, offsets[step],
-                         offsets[step + 1], run.has_actions, run.empty_action, run.empty_observation)
-        j = e - s
-        q_action = action[s:e + 1]
-        q_offsets[j] = i * n_views
-        q_offsets[j + 1] = (i + 1) * n_views
-        _abstain(out, i * n_views, (i + 1) * n_views)
-        run_codes(tree, mixer, scratch, q_action, q_offsets[:j + 2], q_view, q_token, j, clock, run, out)
+                         offsets[step + 1], has_actions, empty_action, empty_observation)
+        r0 = i * n_views
+        _abstain(out, r0, r0 + n_views)
+        a = action[e]
+        if has_actions and (e > s or a != empty_action):
+            for v in range(n_views):
+                recent[v, filled[v] % K] = a
+                filled[v] += 1
+        for v in range(n_views):
+            depth = min(filled[v], K)
+            if depth == 0:
+                continue
+            r = r0 + v
+            out.context[r] = True
+            node, n = root[v], 0
+            for k in range(1, depth + 1):
+                node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) % K])
+                if node < 0:
+                    break
+                nodes[k] = node
+                n = k
+            found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
+            if found > 0:
+                k_sel, kind = select(weights, v, cand, found)
+                record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                                  first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
 
 
 @helper
@@ -527,4 +546,4 @@ def _replay_step(recent, filled, held, a, later, view, token, r0, r1, has_action
         filled[v] += 1
         held[v] = token[r]
     if push_action:
-        _hold_silent(recent, filled, held, view, r0, r1, empty_observation)
+        hold_silent(recent, filled, held, view, r0, r1, empty_observation)
