@@ -187,7 +187,7 @@ def _metadata(library, vocabulary: Vocabulary, spec: Spec | None, params: dict,
 
 def _table(name: str, n: int, columns: dict[str, pa.Array]) -> pa.Table:
     arrays = [pa.repeat(pa.scalar(name, pa.string()), n)]
-    arrays += [columns.get(f.name, pa.nulls(n, f.type)) for f in SCHEMA][1:]
+    arrays += [columns[f.name] if f.name in columns else pa.nulls(n, f.type) for f in SCHEMA][1:]
     return pa.Table.from_arrays(arrays, schema=SCHEMA)
 
 
