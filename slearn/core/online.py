@@ -251,11 +251,7 @@ def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome, ran
     on), so placing an entry compares it with entries, not outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
-    total = 0
-    e = head
-    while e != -1:
-        total += weight[e]
-        e = nxt[e]
+    total = -1  # summed when a share is first needed: most nodes add nothing new
     e = head
     while e != -1:
         o = outcome[e]
@@ -265,6 +261,12 @@ def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome, ran
                 taken = True
                 break
         if not taken and weight[e] > 0:
+            if total < 0:
+                total = 0
+                f = head
+                while f != -1:
+                    total += weight[f]
+                    f = nxt[f]
             pos = filled
             while pos > start and ranks_above(weight, last_seen, outcome, e, ranked[pos - 1]):
                 pos -= 1
