@@ -9,8 +9,7 @@ bound is reached early and forgetting runs all along; it is learned in pieces of
 
 Prints, per tenth: events so far, patterns held, RSS (MB); then the growth of RSS from the
 first tenth at which the bound was reached to the end (flat: within a few MB, the
-allocator's slack), against the growth of an unbounded library over the first tenth
-alone.
+allocator's slack), and the library's allocated bytes per pattern.
 
 Run: ``python bench/bench_forgetting.py [--events 100000000] [--max-patterns 1000000]``.
 """

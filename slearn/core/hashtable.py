@@ -80,13 +80,6 @@ def find(slots, a_of, b_of, a, b):
 def rebuild(slots, a_of, b_of, first, n):
     """Empty ``slots`` and insert records ``first..n-1`` (a root record has ``a_of == -1``)."""
     slots[:] = EMPTY
-    size = len(slots)
     for r in range(first, n):
-        if a_of[r] < 0:
-            continue
-        s = home(slots, a_of[r], b_of[r])
-        while slots[s] != EMPTY:
-            s += 1
-            if s == size:
-                s = 0
-        slots[s] = r
+        if a_of[r] >= 0:
+            slots[probe(slots, a_of, b_of, a_of[r], b_of[r])] = r  # pairs are unique: an empty slot

@@ -225,11 +225,11 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
         if filled >= top.shape[1]:
             break
         w = fresh if (kind == FRESH and k == length) else count
-        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, w, last_seen, outcome, ranked)
+        filled = _rank_into(top, top_p, r, filled, first, nodes[k], nxt, w, last_seen, outcome, ranked)
     for k in range(length + 1, m + 1):
         if filled >= top.shape[1]:
             break
-        filled = _rank_into(top, top_p, r, filled, first[nodes[k]], nxt, count, last_seen, outcome, ranked)
+        filled = _rank_into(top, top_p, r, filled, first, nodes[k], nxt, count, last_seen, outcome, ranked)
 
 
 @helper
@@ -245,14 +245,14 @@ def _share(first, nxt, weight, outcome, node, token, total):
 
 
 @helper
-def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome, ranked):
-    """Append one node's outcomes to row ``r`` of ``top`` in rank order, skipping those
+def _rank_into(top, top_p, r, filled, first, node, nxt, weight, last_seen, outcome, ranked):
+    """Append ``node``'s outcomes to row ``r`` of ``top`` in rank order, skipping those
     already there. ``ranked[i]`` remembers the entry placed at ``top[r, i]`` (from ``filled``
     on), so placing an entry compares it with entries, not outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
     total = -1  # summed when a share is first needed: most nodes add nothing new
-    e = head
+    e = first[node]
     while e != -1:
         o = outcome[e]
         taken = False
@@ -262,11 +262,7 @@ def _rank_into(top, top_p, r, filled, head, nxt, weight, last_seen, outcome, ran
                 break
         if not taken and weight[e] > 0:
             if total < 0:
-                total = 0
-                f = head
-                while f != -1:
-                    total += weight[f]
-                    f = nxt[f]
+                total = node_total(first, nxt, weight, node)
             pos = filled
             while pos > start and ranks_above(weight, last_seen, outcome, e, ranked[pos - 1]):
                 pos -= 1

@@ -105,7 +105,7 @@ class Predictor:
         self._arrays = None  # what the token dictionaries were built for
         self._known: tuple[int, ...] = ()
         self._single: tuple = ()  # one query's buffers
-        self._single_state: tuple = (None, None, None)  # the tree, mixer and clock its table points to
+        self._single_state: tuple = (None, None)  # the tree and mixer its table points to
         self._single_table = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
@@ -156,16 +156,12 @@ class Predictor:
             return self._batch_of_singles(episode, starts, ends, unknown_views)
         self._refresh()
         codes = library.encode(episode, intern=False, unknown_views=unknown_views)
-        out = self._run_queries(codes, starts, ends, _buffers(library, len(ends), self.top_k))
+        out = self._run(codes, starts, ends, _buffers(library, len(ends), self.top_k))
         return _batch(out, len(ends), self._n_views(), self.top_k)
 
     def prediction(self, batch: BatchPrediction, i: int) -> Prediction:
         """Query ``i`` of a batch as a :class:`Prediction`."""
-        names = self.library.view_names
-        return Prediction([self._view_of(v, names[v], int(batch.token[i, v]), float(batch.score[i, v]),
-                                         int(batch.length[i, v]), int(batch.kind[i, v]),
-                                         batch.top[i, v], batch.top_p[i, v])
-                           for v in range(self._n_views())])
+        return self._prediction_of(*(a[i].tolist() for a in batch))
 
     # --- internals ----------------------------------------------------------------------
     def _n_views(self) -> int:
@@ -175,13 +171,6 @@ class Predictor:
         return Prediction([ViewPrediction(v, name, None, 0.0, -1, "")
                            for v, name in enumerate(self.library.view_names)])
 
-    def _run_queries(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray,
-                     buffers: tuple) -> Reports:
-        """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
-        ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
-        the predictor: allocating them costs more than the query)."""
-        return self._run(codes, starts, ends, buffers)
-
     def _run_single(self, codes: StepCodes) -> Reports:
         """The last step of ``codes`` predicted from the steps before it (one query)."""
         n = len(codes.action)
@@ -189,6 +178,9 @@ class Predictor:
         return self._run(codes, self._first, self._last, self._single)
 
     def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: tuple) -> Reports:
+        """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
+        ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
+        the predictor: allocating them costs more than the query)."""
         _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token,
                          starts, ends, *buffers[3])
         return buffers[1]
@@ -209,27 +201,24 @@ class Predictor:
         return table
 
     def _single_prediction(self, out: Reports) -> Prediction:
-        """The one query of the single-query buffers' reports as a :class:`Prediction`
-        (each array read once)."""
+        """``out``'s reports, one per view (the single-query buffers), as a
+        :class:`Prediction` (each array read once)."""
+        return self._prediction_of(out.predicted.tolist(), out.score.tolist(), out.length.tolist(),
+                                   out.kind.tolist(), out.top.tolist(), out.top_p.tolist())
+
+    def _prediction_of(self, token: list, score: list, length: list, kind: list, top: list,
+                       top_p: list) -> Prediction:
+        """A :class:`Prediction` from per-view lists: the predicted token (-1: abstained),
+        its share, context length and expert kind, and the ranked tokens and shares."""
         symbols, names = self._symbols, self.library.view_names
         views = []
-        for v, (token, score, length, kind, top, top_p) in enumerate(zip(
-                out.predicted.tolist(), out.score.tolist(), out.length.tolist(), out.kind.tolist(),
-                out.top.tolist(), out.top_p.tolist())):
-            if token < 0:
+        for v, (t, share, n, k, ranked, shares) in enumerate(zip(token, score, length, kind, top, top_p)):
+            if t < 0:
                 views.append(ViewPrediction(v, names[v], None, 0.0, -1, ""))
             else:
-                views.append(ViewPrediction(v, names[v], symbols(token), score, length, KINDS[kind],
-                                            [(symbols(t), p) for t, p in zip(top, top_p) if t >= 0]))
+                views.append(ViewPrediction(v, names[v], symbols(t), share, n, KINDS[k],
+                                            [(symbols(x), p) for x, p in zip(ranked, shares) if x >= 0]))
         return Prediction(views)
-
-    def _view_of(self, v: int, name: str, token: int, score: float, length: int, kind: int,
-                 top: np.ndarray, top_p: np.ndarray) -> ViewPrediction:
-        if token < 0:
-            return ViewPrediction(v, name, None, 0.0, -1, "")
-        symbols = self._symbols
-        ranked = [(symbols(t), p) for t, p in zip(top.tolist(), top_p.tolist()) if t >= 0]
-        return ViewPrediction(v, name, symbols(token), score, length, KINDS[kind], ranked)
 
     def _symbols(self, token: int) -> tuple[int, ...]:
         found = self._symbols_of.get(token)
@@ -282,8 +271,14 @@ class Predictor:
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
         observations dropped, through the token dictionary."""
-        library = self.library
         steps = [(tuple(a), tuple(o)) for a, o in steps[:-1]] + [(tuple(steps[-1][0]), ())]
+        return self._checked_codes(steps, unknown_views)
+
+    def _checked_codes(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
+        """Steps of tuples as codes, after the checks every query gets: actions only for a
+        library that learned them, symbols the library's views know (or ``unknown_views``
+        places), no symbol both an action and an observation without a vocabulary."""
+        library = self.library
         if not library.has_actions and any(a for a, _ in steps):
             raise ParameterError("this library learned a stream without actions; an episode with "
                                  "actions needs a library made with has_actions=True")
@@ -330,18 +325,8 @@ class Predictor:
 
     def _step_code(self, step: Step) -> tuple:
         """One step's codes, checked as ``_encode_steps`` checks them, and cached."""
-        library, (acts, obs) = self.library, step
-        if acts and not library.has_actions:
-            raise ParameterError("this library learned a stream without actions; an episode with "
-                                 "actions needs a library made with has_actions=True")
-        if library.vocabulary is None:
-            _check_joint([step])
-            view_of = None
-        else:
-            view_of = library._factored_mapping()
-            _check_vocabulary([step], len(view_of))
-            view_of = view_of.tolist()
-        codes = self._codes_of([step], view_of)
+        acts, obs = step
+        codes = self._checked_codes([step], None)
         code = (int(codes.action[0]), tuple(codes.view.tolist()), tuple(codes.token.tolist()))
         if len(self._step_codes) >= _STEP_CACHE:
             self._step_codes, self._acted, self._observed = {}, set(), set()
@@ -379,10 +364,7 @@ class Predictor:
                           np.concatenate((codes.token[: offsets[-2]], np.full(n_views, UNKNOWN, np.int32))))
         out = library.run(codes, learn=False, record=True, top_k=self.top_k)
         first = int(codes.offsets[-2])
-        return Prediction([self._view_of(v, library.view_names[v], int(out.predicted[first + v]),
-                                         float(out.score[first + v]), int(out.length[first + v]),
-                                         int(out.kind[first + v]), out.top[first + v], out.top_p[first + v])
-                           for v in range(n_views)])
+        return self._single_prediction(Reports(*(a[first:first + n_views] for a in out)))
 
 
 def _check_joint(steps: list[Step]) -> None:
