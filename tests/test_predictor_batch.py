@@ -185,3 +185,45 @@ def test_predict_through_the_step_cache_equals_the_general_path(monkeypatch):
     assert len(predictor._step_codes) <= 8
     with pytest.raises(ParameterError, match="both as an action and as an observation"):
         predictor.predict([((100,), (1,)), ((101,), (101,))], (102,))
+
+
+def test_a_query_asked_again_gets_the_same_answer_until_the_library_learns(monkeypatch):
+    """``predict`` remembers its answers (a stream's queries repeat): the same query gets the
+    same object back, and after the library learned, the answer a new predictor gives.
+    Answers are immutable, so sharing them is safe; the memory is bounded."""
+    import slearn.core.predictor as predictor_module
+    rng = np.random.default_rng(11)
+    library = PatternLibrary(max_length=3)
+    library.learn(random_episode(rng, 300, observations=3))
+    predictor = Predictor(library)
+    queries = random_episode(rng, 80, observations=3).steps()
+    before = [predictor.predict(queries[e - 3:e], queries[e][0]) for e in range(3, 80)]
+    assert all(predictor.predict(queries[e - 3:e], queries[e][0]) is said
+               for e, said in zip(range(3, 80), before))
+    library.learn(random_episode(rng, 300, observations=3, actions=(100,)))  # no new tokens
+    after = [predictor.predict(queries[e - 3:e], queries[e][0]) for e in range(3, 80)]
+    fresh = Predictor(library)
+    assert after == [fresh.predict(queries[e - 3:e], queries[e][0]) for e in range(3, 80)]
+    assert after != before  # the library changed its answers, and the predictor followed
+    monkeypatch.setattr(predictor_module, "_ANSWER_CACHE", 8)
+    for e in range(3, 80):
+        predictor.predict(queries[e - 3:e], (101,))
+    assert len(predictor._answers) <= 8 and len(predictor._made) <= 8
+
+
+def test_answers_are_immutable_and_equal_to_ones_built_field_by_field():
+    import dataclasses
+
+    from slearn.core.predictor import Prediction, ViewPrediction, _prediction, _view_prediction
+    library = PatternLibrary(max_length=2)
+    library.learn(random_episode(np.random.default_rng(4), 200))
+    said = Predictor(library).predict([((), (1,)), ((100,), (2,))], (101,))
+    view = said.views[0]
+    assert isinstance(said.views, tuple) and isinstance(view.ranked, tuple) and view.ranked
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        view.score = 0.0  # type: ignore[misc]
+    built = ViewPrediction(view.view, view.name, view.observations, view.score, view.length, view.kind,
+                           view.ranked)
+    assert view == built and hash(view) == hash(built) and repr(view) == repr(built)
+    assert _view_prediction(*dataclasses.astuple(built)) == built
+    assert said == Prediction((built,)) == _prediction((built,)) and hash(said) == hash(Prediction((built,)))
