@@ -239,6 +239,23 @@ def test_a_symbol_used_as_action_and_observation_needs_a_vocabulary():
         library.learn(Episode.from_pairs([1], [1], [2]))
 
 
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.tuples(st.lists(st.integers(0, 9), max_size=3), st.lists(st.integers(0, 9), max_size=3)),
+                min_size=1, max_size=12))
+def test_the_joint_mapping_is_every_observed_symbol_and_refuses_shared_ones(steps):
+    from slearn.core.views import NO_VIEW, joint_mapping
+    episode = Episode.from_steps([(tuple(a), tuple(o)) for a, o in steps])
+    acted = {s for a, _ in steps for s in a}
+    observed = {s for _, o in steps for s in o}
+    if acted & observed:
+        with pytest.raises(ParameterError, match="both as an action and as an observation"):
+            joint_mapping(episode)
+        return
+    mapping = joint_mapping(episode)
+    size = max(acted | observed) + 1 if acted | observed else 0
+    assert mapping.tolist() == [0 if s in observed else NO_VIEW for s in range(size)]
+
+
 @pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="reads this process's RSS")
 def test_a_trees_unused_room_is_not_resident_and_grown_out_arrays_go_back():
     """The room of a tree is reserved, not written: resident memory follows the hash slots

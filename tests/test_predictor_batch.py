@@ -227,3 +227,32 @@ def test_answers_are_immutable_and_equal_to_ones_built_field_by_field():
     assert view == built and hash(view) == hash(built) and repr(view) == repr(built)
     assert _view_prediction(*dataclasses.astuple(built)) == built
     assert said == Prediction((built,)) == _prediction((built,)) and hash(said) == hash(Prediction((built,)))
+
+
+@pytest.mark.parametrize("joints", [1, 3])
+def test_a_batch_remembers_answers_by_context_exactly(joints):
+    """A batch answers a context it answered before from memory (a direct-mapped table of
+    contexts, by view): on a stream whose contexts repeat, with more contexts than slots
+    (they collide) and queries of every length of history, each answer is the step loop's."""
+    if joints == 1:
+        library = PatternLibrary(max_length=4)
+        library.learn(random_episode(np.random.default_rng(3), 600, observations=3, actions=(100, 101)))
+        piece = random_episode(np.random.default_rng(4), 40, observations=3, actions=(100, 101)).steps()
+    else:
+        library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(joints))
+        library.learn(simulate_arm(ArmConfig(joints=joints, trials=300, seed=3)).to_episode())
+        piece = simulate_arm(ArmConfig(joints=joints, trials=20, seed=4)).to_episode().steps()
+    steps = piece * 10  # every context comes back
+    held_out = Episode.from_steps(steps)
+    rng = np.random.default_rng(joints)
+    ends = rng.integers(1, len(held_out), 500)
+    starts = np.maximum(0, ends - rng.integers(0, 8, 500))
+    batch = Predictor(library).predict_batch(held_out, starts, ends)
+    for i, (s, e) in enumerate(zip(starts, ends)):
+        token, score, length, kind, top, top_p = reference(library, steps[s:e + 1], 3)
+        assert batch.token[i].tolist() == token.tolist() and batch.top[i].tolist() == top.tolist()
+        assert batch.score[i].tolist() == score.tolist() and batch.top_p[i].tolist() == top_p.tolist()
+        assert batch.length[i].tolist() == length.tolist() and batch.kind[i].tolist() == kind.tolist()
+    contexts = {tuple(steps[s:e]) + (steps[e][0],) for s, e in zip(starts.tolist(), ends.tolist())}
+    assert 100 < len(contexts) < 400  # most queries were asked before; more contexts than the 512 slots hold apart
+    assert (batch.token >= 0).mean() > 0.25  # answers, not only abstentions

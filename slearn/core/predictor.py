@@ -207,7 +207,7 @@ class Predictor:
         ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
         the predictor: allocating them costs more than the query)."""
         _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token,
-                         starts, ends, *buffers[3])
+                         starts, ends, *buffers[3], buffers is self._single)
         return buffers[1]
 
     def _table(self, buffers: tuple) -> np.ndarray:
@@ -490,11 +490,12 @@ _QUERY = _OUT + len(Reports._fields)
 
 @kernel
 def _predict_queries(table, action, offsets, view, token, starts, ends, has_actions, empty_action,
-                     empty_observation):
+                     empty_observation, reused):
     """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, as
     if they were an episode of their own, then predict every view at step ``ends[i]`` (its
     action pushed) as ``run_codes`` does frozen: rows ``i * views ..`` of ``out``, with
-    ``q_token`` as the outcome. The state comes as one address table (``_state_table``):
+    ``q_token`` as the outcome. ``out`` holds abstentions (``new_reports``) unless
+    ``reused`` (then each query's rows are reset first). The state comes as one address table (``_state_table``):
     numba wraps every array argument on every call, which cost more than a small query;
     for the same reason the query step is walked here, not by a call of ``run_codes``."""
     i32, i64, f64 = np.int32, np.int64, np.float64
@@ -522,7 +523,17 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
-    ranked = np.empty(out.top.shape[1], np.int32)
+    top_k = out.top.shape[1]
+    ranked = np.empty(top_k, np.int32)
+    size = 1  # the answers remembered, by the view's context (see _remember)
+    while size < min(len(starts) * n_views, _MEMO):
+        size *= 2
+    memo_depth = np.full(size, -1, np.int32)
+    memo_window = np.empty((size, K + 1), np.int32)
+    memo_int = np.empty((size, 3), np.int32)
+    memo_score = np.empty(size, f64)
+    memo_top = np.empty((size, top_k), np.int32)
+    memo_p = np.empty((size, top_k), f64)
     for i in range(len(starts)):
         s, e = starts[i], ends[i]
         filled[:] = 0
@@ -531,7 +542,8 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
             _replay_step(recent, filled, held, action[step], step > s, view, token, offsets[step],
                          offsets[step + 1], has_actions, empty_action, empty_observation)
         r0 = i * n_views
-        _abstain(out, r0, r0 + n_views)
+        if reused:
+            _abstain(out, r0, r0 + n_views)
         a = action[e]
         if has_actions and (e > s or a != empty_action):
             for v in range(n_views):
@@ -543,6 +555,11 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
                 continue
             r = r0 + v
             out.context[r] = True
+            truth_unknown = q_token[r] == UNKNOWN
+            slot = _window_slot(recent, filled, v, depth, size)
+            if truth_unknown and _same_window(recent, filled, v, depth, memo_depth, memo_window, slot):
+                _recall(out, r, memo_int, memo_score, memo_top, memo_p, slot)
+                continue
             node, n = root[v], 0
             for k in range(1, depth + 1):
                 node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) % K])
@@ -555,6 +572,78 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
                 k_sel, kind = select(weights, v, cand, found)
                 record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
                                   first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
+            if truth_unknown:
+                _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot)
+                _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot)
+
+
+_MEMO = 1 << 14  # answers a batch remembers (direct-mapped by the view's context)
+
+
+@helper
+def _window_slot(recent, filled, v, depth, size):
+    """The memo slot of view ``v``'s last ``depth`` tokens (``size`` a power of two)."""
+    K = recent.shape[1]
+    h = np.int64(v) * 1000003 + depth
+    at = (filled[v] - 1) % K  # the newest token, then back (no division per token)
+    for _ in range(depth):
+        h = h * 1000003 + recent[v, at]
+        at = at - 1 if at > 0 else K - 1
+    return (h ^ (h >> 29)) & (size - 1)
+
+
+@helper
+def _same_window(recent, filled, v, depth, memo_depth, memo_window, slot):
+    """Whether ``slot`` holds view ``v``'s last ``depth`` tokens (of this view)."""
+    if memo_depth[slot] != depth or memo_window[slot, 0] != v:
+        return False
+    K = recent.shape[1]
+    at = (filled[v] - 1) % K
+    for k in range(1, depth + 1):
+        if memo_window[slot, k] != recent[v, at]:
+            return False
+        at = at - 1 if at > 0 else K - 1
+    return True
+
+
+@helper
+def _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot):
+    """Mark ``slot`` as holding view ``v``'s last ``depth`` tokens."""
+    K = recent.shape[1]
+    memo_depth[slot] = depth
+    memo_window[slot, 0] = v
+    at = (filled[v] - 1) % K
+    for k in range(1, depth + 1):
+        memo_window[slot, k] = recent[v, at]
+        at = at - 1 if at > 0 else K - 1
+
+
+@helper
+def _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot):
+    """Keep report ``r`` in ``slot``. Frozen, a report whose outcome is unknown is a function
+    of the view's context alone (its last ``depth`` tokens): they fix the contexts found,
+    the experts' candidates, the choice among them (the weights do not move) and the
+    ranking. Queries of one stream end in few contexts, and walking the tree and ranking a
+    short context's outcomes are most of a query."""
+    memo_int[slot, 0] = out.predicted[r]
+    memo_int[slot, 1] = out.length[r]
+    memo_int[slot, 2] = out.kind[r]
+    memo_score[slot] = out.score[r]
+    for k in range(memo_top.shape[1]):
+        memo_top[slot, k] = out.top[r, k]
+        memo_p[slot, k] = out.top_p[r, k]
+
+
+@helper
+def _recall(out, r, memo_int, memo_score, memo_top, memo_p, slot):
+    """Report ``r`` as the one kept in ``slot`` (see ``_remember``)."""
+    out.predicted[r] = memo_int[slot, 0]
+    out.length[r] = memo_int[slot, 1]
+    out.kind[r] = memo_int[slot, 2]
+    out.score[r] = memo_score[slot]
+    for k in range(memo_top.shape[1]):
+        out.top[r, k] = memo_top[slot, k]
+        out.top_p[r, k] = memo_p[slot, k]
 
 
 @kernel
@@ -579,7 +668,7 @@ def _predict_one(table, flat):
         offsets[step + 1] = r
         j += 2 + 2 * flat[j + 1]
     starts, ends = np.zeros(1, np.int64), np.full(1, n - 1, np.int64)
-    _predict_queries(table, action, offsets, view, token, starts, ends, flat[0] != 0, flat[1], flat[2])
+    _predict_queries(table, action, offsets, view, token, starts, ends, flat[0] != 0, flat[1], flat[2], True)
 
 
 @helper

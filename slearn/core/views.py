@@ -160,16 +160,28 @@ def joint_mapping(episode: Episode) -> np.ndarray:
     """Without a vocabulary every observation symbol is view 0; actions are none."""
     n = int(episode.symbols.max()) + 1 if episode.n_events else 0
     mapping = np.full(n, NO_VIEW, np.int32)
-    is_obs = np.ones(episode.n_events, bool)
-    starts = episode.step_offsets[:-1]
-    for k in range(int(episode.n_actions.max()) if len(episode) else 0):
-        rows = np.flatnonzero(episode.n_actions > k)
-        is_obs[starts[rows] + k] = False
-    mapping[episode.symbols[is_obs]] = 0
-    if np.any(~is_obs) and np.any(np.isin(episode.symbols[~is_obs], episode.symbols[is_obs])):
+    if not _mark_observed(episode.symbols, episode.step_offsets, episode.n_actions, mapping):
         raise ParameterError("a symbol is used both as an action and as an observation: "
                              "give the library a vocabulary")
     return mapping
+
+
+@kernel
+def _mark_observed(symbols, step_offsets, n_actions, mapping):
+    """``mapping[s] = 0`` for every observed symbol ``s``; whether no symbol is both an
+    action and an observation (one pass: NumPy's masks and ``isin`` took 0.7 ms per 40,000
+    events, as long as encoding them)."""
+    acted = np.zeros(len(mapping), np.bool_)
+    for s in range(len(n_actions)):
+        split = step_offsets[s] + n_actions[s]
+        for i in range(step_offsets[s], split):
+            acted[symbols[i]] = True
+        for i in range(split, step_offsets[s + 1]):
+            mapping[symbols[i]] = 0
+    for s in range(len(mapping)):
+        if acted[s] and mapping[s] == 0:
+            return False
+    return True
 
 
 def token_stream(codes: StepCodes, empty_action: int,
