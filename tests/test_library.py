@@ -256,6 +256,28 @@ def test_the_joint_mapping_is_every_observed_symbol_and_refuses_shared_ones(step
     assert mapping.tolist() == [0 if s in observed else NO_VIEW for s in range(size)]
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([None, 30, 100]), st.integers(1, 4))
+def test_a_contexts_outcomes_include_those_of_every_longer_context_through_it(seed, max_patterns, max_length):
+    """Every occurrence is counted at every length, and forgetting drops longer contexts
+    first: an outcome counted after a context is counted after its shorter suffix (its
+    parent, unless that is a view's root) too. The predictor ranks a chosen context's
+    outcomes, then the shorter ones', and when they fill the ranking it remembers it for
+    every query that chooses the same context, whatever longer contexts it found."""
+    rng = np.random.default_rng(seed)
+    library = PatternLibrary(max_length=max_length, max_patterns=max_patterns)
+    for _ in range(3):
+        obs = rng.integers(0, 4, 151)
+        library.learn(Episode.from_pairs(obs[:1], rng.integers(100, 102, 150), obs[1:]))
+    tree = library.tree
+    counted = {(int(tree.owner[e]), int(tree.outcome[e])) for e in range(int(tree.size[1]))
+               if tree.owner[e] >= 0 and tree.count[e] > 0}
+    longer = [(node, outcome) for node, outcome in counted if tree.parent[tree.parent[node]] >= 0]
+    assert longer or max_length == 1
+    for node, outcome in longer:
+        assert (int(tree.parent[node]), outcome) in counted
+
+
 @pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="reads this process's RSS")
 def test_a_trees_unused_room_is_not_resident_and_grown_out_arrays_go_back():
     """The room of a tree is reserved, not written: resident memory follows the hash slots

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from slearn.core.library import PatternLibrary
@@ -256,3 +256,21 @@ def test_a_batch_remembers_answers_by_context_exactly(joints):
     contexts = {tuple(steps[s:e]) + (steps[e][0],) for s, e in zip(starts.tolist(), ends.tolist())}
     assert 100 < len(contexts) < 400  # most queries were asked before; more contexts than the 512 slots hold apart
     assert (batch.token >= 0).mean() > 0.25  # answers, not only abstentions
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4), st.sampled_from([None, 40, 120]))
+@example(seed=4_294_967_294, top_k=3, max_patterns=40)  # a fresh expert of length 1 chosen
+def test_rankings_remembered_by_the_chosen_context_equal_the_step_loop(seed, top_k, max_patterns):
+    """A batch remembers the ranking of a chosen context and expert when that context and the
+    shorter ones fill it: queries that end in other longer contexts but choose the same one
+    get the step loop's answer. When they do not fill it (a fresh expert ranks its context
+    by fresh counts, where outcomes counted before the epoch are missing; few outcomes;
+    top_k 4), the longer contexts found rank the rest, and nothing is remembered."""
+    rng = np.random.default_rng(seed)
+    library = PatternLibrary(max_length=3, max_patterns=max_patterns)
+    library.learn(random_episode(rng, 400, observations=4, actions=(100, 101)))
+    held_out = Episode.from_steps(random_episode(rng, 30, observations=4, actions=(100, 101)).steps() * 4)
+    ends = rng.integers(1, len(held_out), 60)
+    starts = np.maximum(0, ends - rng.integers(0, 6, 60))
+    assert_batch_matches(Predictor(library, top_k=top_k), held_out, starts, ends)

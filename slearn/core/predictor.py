@@ -534,13 +534,30 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
     memo_score = np.empty(size, f64)
     memo_top = np.empty((size, top_k), np.int32)
     memo_p = np.empty((size, top_k), f64)
+    rank_key = np.full(size, -1, np.int64)  # rankings remembered, by the chosen context and expert
+    rank_int = np.empty((size, 3), np.int32)
+    rank_score = np.empty(size, f64)
+    rank_top = np.empty((size, top_k), np.int32)
+    rank_p = np.empty((size, top_k), f64)
     for i in range(len(starts)):
         s, e = starts[i], ends[i]
         filled[:] = 0
         held[:] = NO_TOKEN
-        for step in range(s, e):
-            _replay_step(recent, filled, held, action[step], step > s, view, token, offsets[step],
-                         offsets[step + 1], has_actions, empty_action, empty_observation)
+        for step in range(s, e):  # as run_codes moves the streams, without learning or recording
+            a = action[step]  # (written out here: a helper's call per step was a quarter of a batch)
+            push_action = has_actions and (step > s or a != empty_action)
+            if push_action:
+                for v in range(n_views):
+                    recent[v, filled[v] % K] = a
+                    filled[v] += 1
+            first_obs, end_obs = offsets[step], offsets[step + 1]
+            for r in range(first_obs, end_obs):
+                v = view[r]
+                recent[v, filled[v] % K] = token[r]
+                filled[v] += 1
+                held[v] = token[r]
+            if push_action and end_obs - first_obs < n_views:  # a view was silent (views are distinct)
+                hold_silent(recent, filled, held, view, first_obs, end_obs, empty_observation)
         r0 = i * n_views
         if reused:
             _abstain(out, r0, r0 + n_views)
@@ -570,8 +587,20 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
             found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
             if found > 0:
                 k_sel, kind = select(weights, v, cand, found)
-                record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
-                                  first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
+                key = np.int64(nodes[k_sel]) * N_KINDS + kind
+                rank_slot = key & (size - 1)
+                if truth_unknown and rank_key[rank_slot] == key:
+                    _recall(out, r, rank_int, rank_score, rank_top, rank_p, rank_slot)
+                else:  # the chosen context and the shorter ones first: they fill the ranking
+                    record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                                      first, nxt, count, fresh, last_seen, outcome, nodes, k_sel, ranked)
+                    if out.top[r, top_k - 1] >= 0:  # then they alone fix the answer (a longer
+                        if truth_unknown:  # context's counted outcomes are its suffixes': test_library)
+                            rank_key[rank_slot] = key
+                            _remember(out, r, rank_int, rank_score, rank_top, rank_p, rank_slot)
+                    elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
+                        record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                                          first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
             if truth_unknown:
                 _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot)
                 _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot)
@@ -687,23 +716,3 @@ def _abstain(out, r0, r1):
         for k in range(out.top.shape[1]):
             out.top[r, k] = -1
             out.top_p[r, k] = 0.0
-
-
-@helper
-def _replay_step(recent, filled, held, a, later, view, token, r0, r1, has_actions, empty_action,
-                 empty_observation):
-    """One history step on the view streams, as ``run_codes`` moves them without learning
-    or recording (the first step of an episode pushes no empty action)."""
-    K = recent.shape[1]
-    push_action = has_actions and (later or a != empty_action)
-    if push_action:
-        for v in range(len(filled)):
-            recent[v, filled[v] % K] = a
-            filled[v] += 1
-    for r in range(r0, r1):
-        v = view[r]
-        recent[v, filled[v] % K] = token[r]
-        filled[v] += 1
-        held[v] = token[r]
-    if push_action:
-        hold_silent(recent, filled, held, view, r0, r1, empty_observation)
