@@ -117,7 +117,7 @@ class Predictor:
         self._acted: set = set()     # symbols the cached steps use as actions,
         self._observed: set = set()  # and as observations
         self._first, self._last = np.zeros(1, np.int64), np.zeros(1, np.int64)  # one query's bounds
-        self._run_scalars: tuple[int, ...] = ()  # has_actions, empty_action, empty_observation
+        self._run_scalars = b""  # has_actions, empty_action, empty_observation (int32 bytes)
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -219,8 +219,8 @@ class Predictor:
         if single and library.tree is self._single_state[0] and library.mixer is self._single_state[1]:
             return self._single_table
         state = (library.tree, library.mixer)
-        scratch, out, q_token, _ = buffers
-        table = _state_table(state, scratch, out, q_token)
+        scratch, out, q_token, _, memo = buffers
+        table = _state_table(state, scratch, out, q_token, memo)
         if single:
             self._single_state, self._single_table = state, table
         return table
@@ -296,16 +296,19 @@ class Predictor:
         learned tokens or views."""
         library = self.library
         clock = library.clock
-        if clock != self._clock:
-            self._clock, self._answers = clock, {}
         arrays, known = library.tokens.arrays, (len(library.tokens), len(library.view_names))
         if arrays is not self._arrays or known != self._known:
             library.prepare()
             self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
             self._made = {}
             self._step_codes, self._acted, self._observed = {}, set(), set()
-            self._single, self._single_state = _buffers(library, 1, self.top_k), (None, None)
-            self._run_scalars = tuple(int(x) for x in self._single[3])
+            self._single = _buffers(library, 1, self.top_k, _SINGLE_MEMO)
+            self._single_state = (None, None)
+            self._run_scalars = np.array(self._single[3], np.int32).tobytes()
+            self._clock = -1
+        if clock != self._clock:
+            self._clock, self._answers = clock, {}
+            forget(self._single[4])
 
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
@@ -341,7 +344,7 @@ class Predictor:
         at all (otherwise no query of them can)."""
         cache = self._step_codes
         last = (actions, ())
-        flat = [*self._run_scalars, len(history) + 1]
+        parts = [self._run_scalars]
         for step in (*history, last):
             try:
                 code = cache.get(step)
@@ -352,18 +355,19 @@ class Predictor:
                         or type(step[1]) is not tuple:
                     return None
                 code = self._step_code(step)
-            flat += code
+            parts.append(code)
         if self.library.vocabulary is None and not self._acted.isdisjoint(self._observed):
             _check_joint([*history, last])
-        return np.array(flat, np.int32)
+        return np.frombuffer(b"".join(parts), np.int32)
 
-    def _step_code(self, step: Step) -> tuple[int, ...]:
+    def _step_code(self, step: Step) -> bytes:
         """One step's codes (its action token, its number of observations, then a view and
-        a token for each), checked as ``_encode_steps`` checks them, and cached."""
+        a token for each) as the bytes of ``int32``s, checked as ``_encode_steps`` checks
+        them, and cached (joining bytes is the cheapest way to one array)."""
         acts, obs = step
         codes = self._checked_codes([step], None)
-        pairs = np.stack((codes.view, codes.token), axis=1).ravel().tolist()
-        code = (int(codes.action[0]), len(codes.view), *pairs)
+        pairs = np.stack((codes.view, codes.token), axis=1).ravel()
+        code = np.concatenate(([codes.action[0], len(codes.view)], pairs)).astype(np.int32).tobytes()
         if len(self._step_codes) >= _STEP_CACHE:
             self._step_codes, self._acted, self._observed = {}, set(), set()
         self._step_codes[step] = code
@@ -455,13 +459,54 @@ def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]
     return [(v, tuple(groups[v])) for v in sorted(groups)]
 
 
-def _buffers(library, queries: int, top_k: int) -> tuple:
-    """Scratch streams, reports, the query steps' outcome tokens and the run's scalars."""
+class Memo(NamedTuple):
+    """Answers a query run remembers, in direct-mapped slots: by a view's context (its last
+    tokens, ``window[slot] = (view, tokens...)``, ``depth`` -1 when empty), and rankings by
+    the chosen context and expert (``rank_key``, -1 when empty). Frozen, an answer whose
+    outcome is unknown is a function of the view's context alone: it fixes the contexts
+    found, the experts' candidates, the choice (the weights do not move) and the ranking."""
+
+    depth: np.ndarray       # int32 (slots,)
+    window: np.ndarray      # int32 (slots, max_context + 1)
+    said: np.ndarray        # int32 (slots, 3): predicted, length, kind
+    score: np.ndarray       # float64 (slots,)
+    top: np.ndarray         # int32 (slots, top_k)
+    top_p: np.ndarray       # float64 (slots, top_k)
+    rank_key: np.ndarray    # int64 (slots,)
+    rank_said: np.ndarray   # int32 (slots, 3)
+    rank_score: np.ndarray  # float64 (slots,)
+    rank_top: np.ndarray    # int32 (slots, top_k)
+    rank_p: np.ndarray      # float64 (slots, top_k)
+
+
+def new_memo(slots: int, max_context: int, top_k: int) -> Memo:
+    """An empty memo of ``slots`` (a power of two)."""
+    return Memo(np.full(slots, -1, np.int32), np.zeros((slots, max_context + 1), np.int32),
+                np.zeros((slots, 3), np.int32), np.zeros(slots), np.zeros((slots, top_k), np.int32),
+                np.zeros((slots, top_k)), np.full(slots, -1, np.int64), np.zeros((slots, 3), np.int32),
+                np.zeros(slots), np.zeros((slots, top_k), np.int32), np.zeros((slots, top_k)))
+
+
+def forget(memo: Memo) -> None:
+    """Empty every slot (the library learned)."""
+    memo.depth.fill(-1)
+    memo.rank_key.fill(-1)
+
+
+_MEMO = 1 << 14        # slots of a batch's memo at most (one per query and view up to it)
+_SINGLE_MEMO = 1 << 10  # slots of the memo a predictor keeps for its single queries
+
+
+def _buffers(library, queries: int, top_k: int, slots: int | None = None) -> tuple:
+    """Scratch streams, reports, the query steps' outcome tokens, the run's scalars and a
+    memo (of ``slots``, else one per query and view up to ``_MEMO``)."""
     n_views = len(library.view_names)
     n = queries * n_views
     run = (library.has_actions, library.empty_action, library.empty_observation)
+    if slots is None:
+        slots = 1 << max(0, min(n, _MEMO) - 1).bit_length()
     return (tuple(new_view_state(n_views, library.max_context, library.streams.root)), new_reports(n, top_k),
-            np.full(n, UNKNOWN, np.int32), run)
+            np.full(n, UNKNOWN, np.int32), run, new_memo(slots, library.max_context, max(top_k, 1)))
 
 
 def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPrediction:
@@ -475,17 +520,18 @@ _STEP_CACHE = 1 << 16    # steps a predictor remembers the codes of
 _ANSWER_CACHE = 1 << 16  # queries a predictor remembers the answers to
 
 
-def _state_table(state: tuple, scratch: tuple, out: Reports, q_token: np.ndarray) -> np.ndarray:
+def _state_table(state: tuple, scratch: tuple, out: Reports, q_token: np.ndarray, memo: Memo) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``_predict_queries``
-    reads them: the tree's fields, the mixer's, the scratch streams', the reports', then
-    ``q_token``. The caller keeps them alive."""
+    reads them: the tree's fields, the mixer's, the scratch streams', the reports',
+    ``q_token``, then the memo's. The caller keeps them alive."""
     tree, mixer = state
-    return address_table((*tree, *mixer, *scratch, *out, q_token))
+    return address_table((*tree, *mixer, *scratch, *out, q_token, *memo))
 
 
 _TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
     len(Tree._fields) + len(Mixer._fields) + len(ViewState._fields)
 _QUERY = _OUT + len(Reports._fields)
+_MEMO_AT = _QUERY + 1
 
 
 @kernel
@@ -495,9 +541,11 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
     if they were an episode of their own, then predict every view at step ``ends[i]`` (its
     action pushed) as ``run_codes`` does frozen: rows ``i * views ..`` of ``out``, with
     ``q_token`` as the outcome. ``out`` holds abstentions (``new_reports``) unless
-    ``reused`` (then each query's rows are reset first). The state comes as one address table (``_state_table``):
-    numba wraps every array argument on every call, which cost more than a small query;
-    for the same reason the query step is walked here, not by a call of ``run_codes``."""
+    ``reused`` (then each query's rows are reset first). Answers with an unknown outcome
+    are remembered in the table's :class:`Memo`, which stays valid while the library does
+    not learn. The state comes as one address table (``_state_table``): numba wraps every
+    array argument on every call, which cost more than a small query; for the same reason
+    the query step is walked here, not by a call of ``run_codes``."""
     i32, i64, f64 = np.int32, np.int64, np.float64
     t, m, sc, o = _TREE, _MIXER, _SCRATCH, _OUT
     tree = Tree(vector(table, t, i32), vector(table, t + 1, i32), vector(table, t + 2, i32),
@@ -525,20 +573,12 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
     top_k = out.top.shape[1]
     ranked = np.empty(top_k, np.int32)
-    size = 1  # the answers remembered, by the view's context (see _remember)
-    while size < min(len(starts) * n_views, _MEMO):
-        size *= 2
-    memo_depth = np.full(size, -1, np.int32)
-    memo_window = np.empty((size, K + 1), np.int32)
-    memo_int = np.empty((size, 3), np.int32)
-    memo_score = np.empty(size, f64)
-    memo_top = np.empty((size, top_k), np.int32)
-    memo_p = np.empty((size, top_k), f64)
-    rank_key = np.full(size, -1, np.int64)  # rankings remembered, by the chosen context and expert
-    rank_int = np.empty((size, 3), np.int32)
-    rank_score = np.empty(size, f64)
-    rank_top = np.empty((size, top_k), np.int32)
-    rank_p = np.empty((size, top_k), f64)
+    mm = _MEMO_AT  # answers remembered (see Memo)
+    memo_depth, memo_window, memo_int = vector(table, mm, i32), matrix(table, mm + 1, i32), matrix(table, mm + 2, i32)
+    memo_score, memo_top, memo_p = vector(table, mm + 3, f64), matrix(table, mm + 4, i32), matrix(table, mm + 5, f64)
+    rank_key, rank_int, rank_score = vector(table, mm + 6, i64), matrix(table, mm + 7, i32), vector(table, mm + 8, f64)
+    rank_top, rank_p = matrix(table, mm + 9, i32), matrix(table, mm + 10, f64)
+    size = len(memo_depth)
     for i in range(len(starts)):
         s, e = starts[i], ends[i]
         filled[:] = 0
@@ -605,8 +645,6 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
                 _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot)
                 _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot)
 
-
-_MEMO = 1 << 14  # answers a batch remembers (direct-mapped by the view's context)
 
 
 @helper
@@ -678,16 +716,19 @@ def _recall(out, r, memo_int, memo_score, memo_top, memo_p, slot):
 @kernel
 def _predict_one(table, flat):
     """One query given as flat codes (``Predictor._cached_codes``): ``has_actions``,
-    ``empty_action``, ``empty_observation``, the number of steps, then per step its action
-    token, its number of observations and a view and a token for each. The steps become the
-    arrays of ``_predict_queries`` here, not in Python: a compiled call costs per argument."""
-    n = flat[3]
+    ``empty_action``, ``empty_observation``, then per step its action token, its number of
+    observations and a view and a token for each. The steps become the arrays of
+    ``_predict_queries`` here, not in Python: a compiled call costs per argument."""
+    n, j = 0, 3
+    while j < len(flat):
+        n += 1
+        j += 2 + 2 * flat[j + 1]
     action = np.empty(n, np.int32)
     offsets = np.zeros(n + 1, np.int64)
-    size = len(flat) - 4 - 2 * n
+    size = len(flat) - 3 - 2 * n
     view = np.empty(size // 2, np.int32)
     token = np.empty(size // 2, np.int32)
-    j, r = 4, 0
+    j, r = 3, 0
     for step in range(n):
         action[step] = flat[j]
         for _ in range(flat[j + 1]):
