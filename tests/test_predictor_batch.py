@@ -274,3 +274,21 @@ def test_rankings_remembered_by_the_chosen_context_equal_the_step_loop(seed, top
     ends = rng.integers(1, len(held_out), 60)
     starts = np.maximum(0, ends - rng.integers(0, 6, 60))
     assert_batch_matches(Predictor(library, top_k=top_k), held_out, starts, ends)
+
+
+def test_a_history_longer_than_the_single_querys_buffer_grows_it():
+    rng = np.random.default_rng(12)
+    library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(2))
+    library.learn(simulate_arm(ArmConfig(joints=2, trials=300, seed=6)).to_episode())
+    steps = simulate_arm(ArmConfig(joints=2, trials=600, seed=7)).to_episode().steps()
+    predictor = Predictor(library)
+    for length in (2, 40, 150, 3, 399):  # the buffer starts at 64 codes
+        e = int(rng.integers(length, len(steps)))
+        history, actions = steps[e - length:e], steps[e][0]
+        expected = reference(library, steps[e - length:e + 1], 3)
+        said = predictor.predict(history, actions)
+        assert [v.observations for v in said.views] == \
+            [library.tokens.symbols(t) if t >= 0 else None for t in expected[0].tolist()]
+        assert [v.score for v in said.views] == expected[1].tolist()
+        assert said == predictor.predict_unknown(list(history) + [(actions, ())])
+    assert len(predictor._single.query.flat) >= 4 * 399

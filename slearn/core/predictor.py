@@ -105,7 +105,8 @@ class Predictor:
         self.top_k = top_k
         self._arrays = None  # what the token dictionaries were built for
         self._known: tuple[int, ...] = ()
-        self._single: tuple = ()  # one query's buffers
+        self._single: Buffers  # one query's buffers (made by _refresh)
+        self._flat_bytes = memoryview(b"")  # their flat codes' bytes, written by _run_flat
         self._single_state: tuple = (None, None)  # the tree and mixer its table points to
         self._single_table = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
@@ -117,7 +118,6 @@ class Predictor:
         self._acted: set = set()     # symbols the cached steps use as actions,
         self._observed: set = set()  # and as observations
         self._first, self._last = np.zeros(1, np.int64), np.zeros(1, np.int64)  # one query's bounds
-        self._run_scalars = b""  # has_actions, empty_action, empty_observation (int32 bytes)
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -196,34 +196,32 @@ class Predictor:
         self._last[0] = n - 1
         return self._run(codes, self._first, self._last, self._single)
 
-    def _run_flat(self, flat: np.ndarray) -> Reports:
+    def _run_flat(self, flat: bytes) -> Reports:
         """The last step of the flat codes of ``_cached_codes`` predicted from the steps
-        before it (one query, one compiled call of two arguments)."""
-        _predict_one(self._table(self._single), flat)
-        return self._single[1]
+        before it: one compiled call of three scalar arguments (the codes are copied into
+        the single query's buffer, which its kept address table points to)."""
+        size = len(flat) // 4
+        if size > len(self._single.query.flat):
+            self._single = self._single._replace(query=_single_query(self._single.query.run, size))
+            self._single_state, self._flat_bytes = (None, None), self._single.query.flat.data.cast("B")
+        library = self.library
+        if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
+            self._single_table = _state_table((library.tree, library.mixer), self._single)
+            self._single_state = (library.tree, library.mixer)
+        self._flat_bytes[:len(flat)] = flat
+        _predict_queries(self._single_table, size, True)
+        return self._single.out
 
-    def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: tuple) -> Reports:
+    def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: Buffers) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
         ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
         the predictor: allocating them costs more than the query)."""
-        _predict_queries(self._table(buffers), codes.action, codes.offsets, codes.view, codes.token,
-                         starts, ends, *buffers[3], buffers is self._single)
-        return buffers[1]
-
-    def _table(self, buffers: tuple) -> np.ndarray:
-        """The address table of the library's state and ``buffers``. The single query's
-        is kept, with the arrays it points to, until the library replaces one of them (its
-        tree grew, or it learned new views)."""
         library = self.library
-        single = buffers is self._single
-        if single and library.tree is self._single_state[0] and library.mixer is self._single_state[1]:
-            return self._single_table
-        state = (library.tree, library.mixer)
-        scratch, out, q_token, _, memo = buffers
-        table = _state_table(state, scratch, out, q_token, memo)
-        if single:
-            self._single_state, self._single_table = state, table
-        return table
+        query = buffers.query._replace(action=codes.action, offsets=codes.offsets, view=codes.view,
+                                       token=codes.token, starts=starts, ends=ends)
+        table = _state_table((library.tree, library.mixer), buffers._replace(query=query))
+        _predict_queries(table, -1, buffers is self._single)
+        return buffers.out
 
     def _single_prediction(self, out: Reports) -> Prediction:
         """``out``'s reports, one per view (the single-query buffers), as a
@@ -303,12 +301,12 @@ class Predictor:
             self._made = {}
             self._step_codes, self._acted, self._observed = {}, set(), set()
             self._single = _buffers(library, 1, self.top_k, _SINGLE_MEMO)
-            self._single_state = (None, None)
-            self._run_scalars = np.array(self._single[3], np.int32).tobytes()
+            self._single = self._single._replace(query=_single_query(self._single.query.run, 64))
+            self._single_state, self._flat_bytes = (None, None), self._single.query.flat.data.cast("B")
             self._clock = -1
         if clock != self._clock:
             self._clock, self._answers = clock, {}
-            forget(self._single[4])
+            forget(self._single.memo)
 
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
@@ -335,16 +333,17 @@ class Predictor:
             view_of = view_of.tolist()
         return self._codes_of(steps, view_of)
 
-    def _cached_codes(self, history, actions: tuple) -> np.ndarray | None:
-        """``_encode_steps(history + [(actions, ())])`` as one flat array (``_predict_one``
-        reads it), through a dictionary of steps already encoded (a stream's steps repeat),
-        or ``None`` when a step is not a tuple of tuples (then the general path encodes it).
-        Checks what ``_encode_steps`` checks: an unseen step on entry; a symbol used both as
-        an action and as an observation across the steps only while the cached steps do so
-        at all (otherwise no query of them can)."""
+    def _cached_codes(self, history, actions: tuple) -> bytes | None:
+        """``_encode_steps(history + [(actions, ())])`` as the bytes of flat ``int32`` codes
+        (per step its action token, its number of observations, then a view and a token
+        for each; ``_predict_queries`` reads them), through a dictionary of steps already
+        encoded (a stream's steps repeat), or ``None`` when a step is not a tuple of tuples
+        (then the general path encodes it). Checks what ``_encode_steps`` checks: an unseen
+        step on entry; a symbol used both as an action and as an observation across the
+        steps only while the cached steps do so at all (otherwise no query of them can)."""
         cache = self._step_codes
         last = (actions, ())
-        parts = [self._run_scalars]
+        parts = []
         for step in (*history, last):
             try:
                 code = cache.get(step)
@@ -358,7 +357,7 @@ class Predictor:
             parts.append(code)
         if self.library.vocabulary is None and not self._acted.isdisjoint(self._observed):
             _check_joint([*history, last])
-        return np.frombuffer(b"".join(parts), np.int32)
+        return b"".join(parts)
 
     def _step_code(self, step: Step) -> bytes:
         """One step's codes (its action token, its number of observations, then a view and
@@ -461,30 +460,29 @@ def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]
 
 class Memo(NamedTuple):
     """Answers a query run remembers, in direct-mapped slots: by a view's context (its last
-    tokens, ``window[slot] = (view, tokens...)``, ``depth`` -1 when empty), and rankings by
-    the chosen context and expert (``rank_key``, -1 when empty). Frozen, an answer whose
-    outcome is unknown is a function of the view's context alone: it fixes the contexts
-    found, the experts' candidates, the choice (the weights do not move) and the ranking."""
+    tokens, ``window[slot] = (view, tokens...)``, ``depth`` -1 when empty; the answer in
+    row ``slot``), and rankings by the chosen context and expert (``rank_key``, -1 when
+    empty; the answer in row ``slots + slot``). Frozen, an answer whose outcome is unknown
+    is a function of the view's context alone: it fixes the contexts found, the experts'
+    candidates, the choice (the weights do not move) and the ranking."""
 
-    depth: np.ndarray       # int32 (slots,)
-    window: np.ndarray      # int32 (slots, max_context + 1)
-    said: np.ndarray        # int32 (slots, 3): predicted, length, kind
-    score: np.ndarray       # float64 (slots,)
-    top: np.ndarray         # int32 (slots, top_k)
-    top_p: np.ndarray       # float64 (slots, top_k)
-    rank_key: np.ndarray    # int64 (slots,)
-    rank_said: np.ndarray   # int32 (slots, 3)
-    rank_score: np.ndarray  # float64 (slots,)
-    rank_top: np.ndarray    # int32 (slots, top_k)
-    rank_p: np.ndarray      # float64 (slots, top_k)
+    depth: np.ndarray      # int32 (slots,)
+    window: np.ndarray     # int32 (slots, max_context + 1)
+    rank_key: np.ndarray   # int64 (slots,)
+    predicted: np.ndarray  # the answers, as in Reports (2 * slots rows)
+    length: np.ndarray
+    kind: np.ndarray
+    score: np.ndarray
+    top: np.ndarray
+    top_p: np.ndarray
 
 
 def new_memo(slots: int, max_context: int, top_k: int) -> Memo:
     """An empty memo of ``slots`` (a power of two)."""
+    said = new_reports(2 * slots, top_k)
     return Memo(np.full(slots, -1, np.int32), np.zeros((slots, max_context + 1), np.int32),
-                np.zeros((slots, 3), np.int32), np.zeros(slots), np.zeros((slots, top_k), np.int32),
-                np.zeros((slots, top_k)), np.full(slots, -1, np.int64), np.zeros((slots, 3), np.int32),
-                np.zeros(slots), np.zeros((slots, top_k), np.int32), np.zeros((slots, top_k)))
+                np.full(slots, -1, np.int64), said.predicted, said.length, said.kind, said.score, said.top,
+                said.top_p)
 
 
 def forget(memo: Memo) -> None:
@@ -493,20 +491,55 @@ def forget(memo: Memo) -> None:
     memo.rank_key.fill(-1)
 
 
+class Query(NamedTuple):
+    """What a query run asks: the run's scalars (``has_actions``, ``empty_action``,
+    ``empty_observation``), then either a single query's flat codes (``Predictor.
+    _cached_codes``) or encoded steps and each query's bounds."""
+
+    run: np.ndarray      # int32[3]
+    flat: np.ndarray     # int32
+    action: np.ndarray   # int32 per step
+    offsets: np.ndarray  # int64 per step + 1
+    view: np.ndarray     # int32 per observation
+    token: np.ndarray    # int32 per observation
+    starts: np.ndarray   # int64 per query
+    ends: np.ndarray     # int64 per query
+
+
+class Buffers(NamedTuple):
+    """Everything a query run works in besides the library's own state."""
+
+    scratch: ViewState  # streams the history is replayed on
+    out: Reports
+    q_token: np.ndarray  # the outcome of each report (unknown)
+    memo: Memo
+    query: Query
+
+
 _MEMO = 1 << 14        # slots of a batch's memo at most (one per query and view up to it)
 _SINGLE_MEMO = 1 << 10  # slots of the memo a predictor keeps for its single queries
+_NO_I32, _NO_I64 = np.zeros(0, np.int32), np.zeros(0, np.int64)
 
 
-def _buffers(library, queries: int, top_k: int, slots: int | None = None) -> tuple:
-    """Scratch streams, reports, the query steps' outcome tokens, the run's scalars and a
-    memo (of ``slots``, else one per query and view up to ``_MEMO``)."""
+def _buffers(library, queries: int, top_k: int, slots: int | None = None) -> Buffers:
+    """The buffers of ``queries`` queries, with a memo of ``slots`` (else one per query and
+    view up to ``_MEMO``)."""
     n_views = len(library.view_names)
     n = queries * n_views
-    run = (library.has_actions, library.empty_action, library.empty_observation)
+    run = np.array([library.has_actions, library.empty_action, library.empty_observation], np.int32)
     if slots is None:
         slots = 1 << max(0, min(n, _MEMO) - 1).bit_length()
-    return (tuple(new_view_state(n_views, library.max_context, library.streams.root)), new_reports(n, top_k),
-            np.full(n, UNKNOWN, np.int32), run, new_memo(slots, library.max_context, max(top_k, 1)))
+    return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
+                   np.full(n, UNKNOWN, np.int32), new_memo(slots, library.max_context, max(top_k, 1)),
+                   Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64))
+
+
+def _single_query(run: np.ndarray, size: int) -> Query:
+    """A single query's buffers for ``size`` flat codes at least (capacity doubles): its
+    steps take fewer entries than its codes."""
+    n = 1 << max(size - 1, 1).bit_length()
+    return Query(run, np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n + 1, np.int64),
+                 np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(1, np.int64), np.zeros(1, np.int64))
 
 
 def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPrediction:
@@ -520,32 +553,34 @@ _STEP_CACHE = 1 << 16    # steps a predictor remembers the codes of
 _ANSWER_CACHE = 1 << 16  # queries a predictor remembers the answers to
 
 
-def _state_table(state: tuple, scratch: tuple, out: Reports, q_token: np.ndarray, memo: Memo) -> np.ndarray:
+def _state_table(state: tuple, buffers: Buffers) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``_predict_queries``
     reads them: the tree's fields, the mixer's, the scratch streams', the reports',
-    ``q_token``, then the memo's. The caller keeps them alive."""
+    ``q_token``, the memo's, then the query's. The caller keeps them alive."""
     tree, mixer = state
-    return address_table((*tree, *mixer, *scratch, *out, q_token, *memo))
+    scratch, out, q_token, memo, query = buffers
+    return address_table((*tree, *mixer, *scratch, *out, q_token, *memo, *query))
 
 
 _TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
     len(Tree._fields) + len(Mixer._fields) + len(ViewState._fields)
 _QUERY = _OUT + len(Reports._fields)
 _MEMO_AT = _QUERY + 1
+_QUERY_AT = _MEMO_AT + len(Memo._fields)
 
 
 @kernel
-def _predict_queries(table, action, offsets, view, token, starts, ends, has_actions, empty_action,
-                     empty_observation, reused):
-    """For query ``i``: replay steps ``starts[i]..ends[i] - 1`` on fresh scratch streams, as
-    if they were an episode of their own, then predict every view at step ``ends[i]`` (its
+def _predict_queries(table, n_flat, reused):
+    """For query ``i`` of the table's :class:`Query`: replay steps ``starts[i]..ends[i] - 1``
+    on fresh scratch streams, as if they were an episode of their own, then predict every view at step ``ends[i]`` (its
     action pushed) as ``run_codes`` does frozen: rows ``i * views ..`` of ``out``, with
-    ``q_token`` as the outcome. ``out`` holds abstentions (``new_reports``) unless
-    ``reused`` (then each query's rows are reset first). Answers with an unknown outcome
-    are remembered in the table's :class:`Memo`, which stays valid while the library does
-    not learn. The state comes as one address table (``_state_table``): numba wraps every
-    array argument on every call, which cost more than a small query; for the same reason
-    the query step is walked here, not by a call of ``run_codes``."""
+    ``q_token`` as the outcome. ``n_flat >= 0``: one query, the first ``n_flat`` flat
+    codes. ``out`` holds abstentions (``new_reports``) unless ``reused`` (then each query's
+    rows are reset first). Answers with an unknown outcome are remembered in the table's
+    :class:`Memo`, which stays valid while the library does not learn. Everything comes
+    as one address table (``_state_table``): numba wraps every array argument on every
+    call, which cost more than a small query; for the same reason the query step is walked
+    here, not by a call of ``run_codes``."""
     i32, i64, f64 = np.int32, np.int64, np.float64
     t, m, sc, o = _TREE, _MIXER, _SCRATCH, _OUT
     tree = Tree(vector(table, t, i32), vector(table, t + 1, i32), vector(table, t + 2, i32),
@@ -574,12 +609,22 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
     top_k = out.top.shape[1]
     ranked = np.empty(top_k, np.int32)
     mm = _MEMO_AT  # answers remembered (see Memo)
-    memo_depth, memo_window, memo_int = vector(table, mm, i32), matrix(table, mm + 1, i32), matrix(table, mm + 2, i32)
-    memo_score, memo_top, memo_p = vector(table, mm + 3, f64), matrix(table, mm + 4, i32), matrix(table, mm + 5, f64)
-    rank_key, rank_int, rank_score = vector(table, mm + 6, i64), matrix(table, mm + 7, i32), vector(table, mm + 8, f64)
-    rank_top, rank_p = matrix(table, mm + 9, i32), matrix(table, mm + 10, f64)
+    memo_depth, memo_window, rank_key = vector(table, mm, i32), matrix(table, mm + 1, i32), vector(table, mm + 2, i64)
+    memo_said, memo_length, memo_kind = vector(table, mm + 3, i32), vector(table, mm + 4, i32), \
+        vector(table, mm + 5, np.int8)
+    memo_score, memo_top, memo_p = vector(table, mm + 6, f64), matrix(table, mm + 7, i32), matrix(table, mm + 8, f64)
     size = len(memo_depth)
-    for i in range(len(starts)):
+    qa = _QUERY_AT
+    run = vector(table, qa, i32)
+    has_actions, empty_action, empty_observation = run[0] != 0, run[1], run[2]
+    action, offsets, view, token = vector(table, qa + 2, i32), vector(table, qa + 3, i64), \
+        vector(table, qa + 4, i32), vector(table, qa + 5, i32)
+    starts, ends = vector(table, qa + 6, i64), vector(table, qa + 7, i64)
+    n_queries = len(starts)
+    if n_flat >= 0:  # one query: its steps into the buffers, which hold as many codes
+        _steps_of(vector(table, qa + 1, i32), n_flat, action, offsets, view, token, starts, ends)
+        n_queries = 1
+    for i in range(n_queries):
         s, e = starts[i], ends[i]
         filled[:] = 0
         held[:] = NO_TOKEN
@@ -614,37 +659,50 @@ def _predict_queries(table, action, offsets, view, token, starts, ends, has_acti
             out.context[r] = True
             truth_unknown = q_token[r] == UNKNOWN
             slot = _window_slot(recent, filled, v, depth, size)
+            recalled, keep = -1, -1  # memo rows: the answer's, and a ranking's to keep
             if truth_unknown and _same_window(recent, filled, v, depth, memo_depth, memo_window, slot):
-                _recall(out, r, memo_int, memo_score, memo_top, memo_p, slot)
-                continue
-            node, n = root[v], 0
-            for k in range(1, depth + 1):
-                node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) % K])
-                if node < 0:
-                    break
-                nodes[k] = node
-                n = k
-            found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
-            if found > 0:
-                k_sel, kind = select(weights, v, cand, found)
-                key = np.int64(nodes[k_sel]) * N_KINDS + kind
-                rank_slot = key & (size - 1)
-                if truth_unknown and rank_key[rank_slot] == key:
-                    _recall(out, r, rank_int, rank_score, rank_top, rank_p, rank_slot)
-                else:  # the chosen context and the shorter ones first: they fill the ranking
-                    record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
-                                      first, nxt, count, fresh, last_seen, outcome, nodes, k_sel, ranked)
-                    if out.top[r, top_k - 1] >= 0:  # then they alone fix the answer (a longer
-                        if truth_unknown:  # context's counted outcomes are its suffixes': test_library)
-                            rank_key[rank_slot] = key
-                            _remember(out, r, rank_int, rank_score, rank_top, rank_p, rank_slot)
-                    elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
+                recalled = slot
+            else:
+                node, n = root[v], 0
+                for k in range(1, depth + 1):
+                    node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) % K])
+                    if node < 0:
+                        break
+                    nodes[k] = node
+                    n = k
+                found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
+                if found > 0:
+                    k_sel, kind = select(weights, v, cand, found)
+                    key = np.int64(nodes[k_sel]) * N_KINDS + kind
+                    rank_slot = key & (size - 1)
+                    if truth_unknown and rank_key[rank_slot] == key:
+                        recalled = size + rank_slot
+                    else:  # the chosen context and the shorter ones first: they fill the ranking
                         record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
-                                          first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
-            if truth_unknown:
+                                          first, nxt, count, fresh, last_seen, outcome, nodes, k_sel, ranked)
+                        if out.top[r, top_k - 1] >= 0:  # then they alone fix the answer (a longer
+                            if truth_unknown:  # context's counted outcomes are its suffixes': test_library)
+                                rank_key[rank_slot] = key
+                                keep = size + rank_slot
+                        elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
+                            record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                                              first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
+            # (the copies are written out: a helper's call with a dozen arrays cost a tenth of a batch)
+            if recalled >= 0:
+                out.predicted[r], out.length[r], out.kind[r] = memo_said[recalled], memo_length[recalled], \
+                    memo_kind[recalled]
+                out.score[r] = memo_score[recalled]
+                for k in range(top_k):
+                    out.top[r, k], out.top_p[r, k] = memo_top[recalled, k], memo_p[recalled, k]
+            if truth_unknown and recalled != slot:
                 _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot)
-                _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot)
-
+                for row in (slot, keep):
+                    if row >= 0:
+                        memo_said[row], memo_length[row], memo_kind[row] = out.predicted[r], out.length[r], \
+                            out.kind[r]
+                        memo_score[row] = out.score[r]
+                        for k in range(top_k):
+                            memo_top[row, k], memo_p[row, k] = out.top[r, k], out.top_p[r, k]
 
 
 @helper
@@ -686,59 +744,23 @@ def _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot):
 
 
 @helper
-def _remember(out, r, memo_int, memo_score, memo_top, memo_p, slot):
-    """Keep report ``r`` in ``slot``. Frozen, a report whose outcome is unknown is a function
-    of the view's context alone (its last ``depth`` tokens): they fix the contexts found,
-    the experts' candidates, the choice among them (the weights do not move) and the
-    ranking. Queries of one stream end in few contexts, and walking the tree and ranking a
-    short context's outcomes are most of a query."""
-    memo_int[slot, 0] = out.predicted[r]
-    memo_int[slot, 1] = out.length[r]
-    memo_int[slot, 2] = out.kind[r]
-    memo_score[slot] = out.score[r]
-    for k in range(memo_top.shape[1]):
-        memo_top[slot, k] = out.top[r, k]
-        memo_p[slot, k] = out.top_p[r, k]
-
-
-@helper
-def _recall(out, r, memo_int, memo_score, memo_top, memo_p, slot):
-    """Report ``r`` as the one kept in ``slot`` (see ``_remember``)."""
-    out.predicted[r] = memo_int[slot, 0]
-    out.length[r] = memo_int[slot, 1]
-    out.kind[r] = memo_int[slot, 2]
-    out.score[r] = memo_score[slot]
-    for k in range(memo_top.shape[1]):
-        out.top[r, k] = memo_top[slot, k]
-        out.top_p[r, k] = memo_p[slot, k]
-
-
-@kernel
-def _predict_one(table, flat):
-    """One query given as flat codes (``Predictor._cached_codes``): ``has_actions``,
-    ``empty_action``, ``empty_observation``, then per step its action token, its number of
-    observations and a view and a token for each. The steps become the arrays of
-    ``_predict_queries`` here, not in Python: a compiled call costs per argument."""
-    n, j = 0, 3
-    while j < len(flat):
-        n += 1
-        j += 2 + 2 * flat[j + 1]
-    action = np.empty(n, np.int32)
-    offsets = np.zeros(n + 1, np.int64)
-    size = len(flat) - 3 - 2 * n
-    view = np.empty(size // 2, np.int32)
-    token = np.empty(size // 2, np.int32)
-    j, r = 3, 0
-    for step in range(n):
+def _steps_of(flat, n_flat, action, offsets, view, token, starts, ends):
+    """The first ``n_flat`` flat codes (``Predictor._cached_codes``) as the steps of one
+    query (actions, offsets, views, tokens) and its bounds: every step but the last is its
+    history."""
+    j, r, step = 0, 0, 0
+    offsets[0] = 0
+    while j < n_flat:
         action[step] = flat[j]
-        for _ in range(flat[j + 1]):
-            view[r] = flat[j + 2 + 2 * (r - offsets[step])]
-            token[r] = flat[j + 3 + 2 * (r - offsets[step])]
+        for k in range(flat[j + 1]):
+            view[r] = flat[j + 2 + 2 * k]
+            token[r] = flat[j + 3 + 2 * k]
             r += 1
         offsets[step + 1] = r
         j += 2 + 2 * flat[j + 1]
-    starts, ends = np.zeros(1, np.int64), np.full(1, n - 1, np.int64)
-    _predict_queries(table, action, offsets, view, token, starts, ends, flat[0] != 0, flat[1], flat[2], True)
+        step += 1
+    starts[0] = 0
+    ends[0] = step - 1
 
 
 @helper
