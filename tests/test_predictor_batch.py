@@ -180,7 +180,7 @@ def test_predict_through_the_step_cache_equals_the_general_path(monkeypatch):
         same_answers(episode.steps())  # values not learned yet
         library.learn(episode)
         same_answers(episode.steps())
-    monkeypatch.setattr(predictor_module, "_STEP_CACHE", 8)
+    monkeypatch.setattr(predictor_module, "_ANSWER_CACHE", 8)
     same_answers(random_episode(rng, 300, observations=9).steps())
     assert len(predictor._step_codes) <= 8
     with pytest.raises(ParameterError, match="both as an action and as an observation"):

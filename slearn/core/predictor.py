@@ -111,7 +111,7 @@ class Predictor:
         self._single_table = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
-        self._step_codes: dict = {}  # step -> (action token, views, tokens), see _cached_codes
+        self._step_codes: dict = {}  # step -> its flat codes' bytes, see _step_code
         self._answers: dict = {}     # (history, actions) -> Prediction, for the library's clock
         self._made: dict = {}        # reports -> Prediction, see _single_prediction
         self._clock = -1
@@ -127,8 +127,7 @@ class Predictor:
         library = self.library
         if library.clock and library.view_names and getattr(library, "streams", None) is not None:
             self._refresh()
-            if type(actions) is not tuple:
-                actions = tuple(actions)
+            actions = actions if type(actions) is tuple else tuple(actions)
             key: tuple | None = (tuple(history), actions)
             try:
                 said = self._answers.get(key)
@@ -140,9 +139,7 @@ class Predictor:
             if flat is not None:
                 said = self._single_prediction(self._run_flat(flat))
                 if key is not None:
-                    if len(self._answers) >= _ANSWER_CACHE:
-                        self._answers = {}
-                    self._answers[key] = said
+                    self._answers = _kept(self._answers, key, said)
                 return said
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
@@ -232,9 +229,7 @@ class Predictor:
         made = self._made.get(key)
         if made is None:
             made = self._prediction_of(*(a.tolist() for a in said))
-            if len(self._made) >= _ANSWER_CACHE:
-                self._made = {}
-            self._made[key] = made
+            self._made = _kept(self._made, key, made)
         return made
 
     def _prediction_of(self, token: list, score: list, length: list, kind: list, top: list,
@@ -367,7 +362,7 @@ class Predictor:
         codes = self._checked_codes([step], None)
         pairs = np.stack((codes.view, codes.token), axis=1).ravel()
         code = np.concatenate(([codes.action[0], len(codes.view)], pairs)).astype(np.int32).tobytes()
-        if len(self._step_codes) >= _STEP_CACHE:
+        if len(self._step_codes) >= _ANSWER_CACHE:
             self._step_codes, self._acted, self._observed = {}, set(), set()
         self._step_codes[step] = code
         self._acted.update(acts)
@@ -549,8 +544,16 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
                            out.top.reshape(shape + (top_k,)), out.top_p.reshape(shape + (top_k,)))
 
 
-_STEP_CACHE = 1 << 16    # steps a predictor remembers the codes of
-_ANSWER_CACHE = 1 << 16  # queries a predictor remembers the answers to
+_ANSWER_CACHE = 1 << 16  # steps, queries, answers a predictor remembers (each)
+
+
+def _kept(cache: dict, key, value) -> dict:
+    """``cache`` with ``key: value``, emptied first when full (answers of a stream repeat:
+    what was asked recently comes back soon)."""
+    if len(cache) >= _ANSWER_CACHE:
+        cache = {}
+    cache[key] = value
+    return cache
 
 
 def _state_table(state: tuple, buffers: Buffers) -> np.ndarray:
