@@ -5,10 +5,14 @@ weights: learning trained them). The history is replayed on scratch view streams
 as the library's own streams would have seen it, and every view gets a prediction for the
 step after it. Tokens the library never saw match no context.
 
-One query costs one compiled call: the steps are turned into tokens through a dictionary
-kept by the predictor (not one table probe per tuple), the history only moves the view
-streams, and the step loop of :mod:`slearn.core.online` predicts the last step alone.
+One query costs one compiled call of three scalars: the steps are turned into tokens
+through a dictionary kept by the predictor (not one table probe per tuple) and copied to a
+buffer the call's address table points to; the history only moves the view streams, and
+the last step is predicted as the step loop of :mod:`slearn.core.online` predicts it.
 :meth:`Predictor.predict_batch` answers many queries of one episode in one call, as arrays.
+Since nothing changes while the library does not learn, answers are remembered: per query
+(a stream's queries repeat), per view's context and per chosen context's ranking
+(:class:`Memo`); learning empties them.
 """
 
 from __future__ import annotations
