@@ -69,25 +69,43 @@ class SequenceModel:
 
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
         """Up to ``k`` next items, best first, each with the share of its context behind it."""
-        prediction = self._query([({}, {ITEM: item}) for item in self._tail(history)], {}, k)
+        tail = self._tail(history)
+        symbols = self._known_items(tail)
+        if symbols is None:  # an item never seen: the general path gives it a symbol of its own
+            prediction = self._query([({}, {ITEM: item}) for item in tail], {}, k)
+        else:  # the predictor's path for steps it may have seen (it remembers their codes)
+            prediction = self._named(self._predictor_for(k).predict([((), (s,)) for s in symbols], ()), k)
         return [(value, p) for value, p in prediction.get(ITEM, [])]
 
     def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
         """:meth:`predict` for many histories, in one compiled call (the same answers)."""
         if self.library is None:
             return [None for _ in histories]
-        steps: list = []
+        # The rows _lookup_steps makes of ({}, {ITEM: item}) steps, each followed by an empty
+        # query step, without a mapping per item: a value never seen gets a symbol past the
+        # vocabulary (one per occurrence), in the item view if the library has one.
+        get, known = self.vocabulary.get_symbol, len(self.vocabulary)
+        unknown_view = {name: i for i, name in enumerate(self.library.view_names)}.get(ITEM, -1)
+        rows: list = []
+        unknown: list[int] = []
         starts, ends = [], []
         for history in histories:
-            starts.append(len(steps))
-            steps.extend(({}, {ITEM: item}) for item in self._tail(history))
-            ends.append(len(steps))
-            steps.append(({}, {}))
+            starts.append(len(rows))
+            for item in self._tail(history):
+                try:
+                    s = get(ITEM, item)
+                except TypeError:
+                    s = self._symbol(ITEM, item, learn=False)  # raises: not hashable
+                if s is None:
+                    s = known + len(unknown)
+                    unknown.append(unknown_view)
+                rows.append(((), (s,)))
+            ends.append(len(rows))
+            rows.append(((), ()))
         if not ends:
             return []
-        rows, unknown = self._lookup_steps(self.library, steps)
         predictor = self._predictor_for(1)
-        batch = predictor.predict_batch(Episode.from_steps(rows), starts, ends, unknown)
+        batch = predictor.predict_batch(Episode.from_steps(rows), starts, ends, np.asarray(unknown, np.int32))
         names = self.library.view_names
         view = next((i for i, name in enumerate(names) if name in (ITEM, "*")), None)
         if view is None:
@@ -192,6 +210,17 @@ class SequenceModel:
                 self.vocabulary.add_channel(str(channel), role) if learn else None
             out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
         return out[0], out[1]
+
+    def _known_items(self, items: list[Hashable]) -> list[int] | None:
+        """The items' symbols, or ``None`` when one was never seen (or nothing was learned)."""
+        if self.library is None:
+            return None
+        get = self.vocabulary.get_symbol
+        try:
+            symbols = [get(ITEM, item) for item in items]
+        except TypeError:  # not hashable: the general path says so
+            return None
+        return None if None in symbols else symbols  # type: ignore[return-value]
 
     def _tail(self, history: Sequence[Hashable]) -> list[Hashable]:
         items = list(history)

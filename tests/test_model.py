@@ -118,3 +118,24 @@ def test_predict_many_answers_what_predict_answers(scoring):
     assert model.predict_many([]) == []
     with pytest.raises(ParameterError, match="not hashable"):
         model.predict_many([["a", ["b"]]])
+
+
+@pytest.mark.parametrize("scoring", ["adaptive", "literal"])
+def test_rank_of_known_items_equals_the_general_path(scoring, monkeypatch):
+    """Histories of items seen before go the predictor's path for steps it may have cached;
+    they rank what the general path (a symbol per item looked up, every step encoded)
+    ranks, for every k, and an unhashable item is refused on either path."""
+    import random
+
+    rng = random.Random(3)
+    model = SequenceModel(max_length=3, scoring=scoring)
+    for _ in range(30):
+        model.learn([rng.choice("abcd") for _ in range(rng.randint(1, 25))])
+    histories = [[rng.choice("abcd") for _ in range(rng.randint(0, 7))] for _ in range(150)]
+    fast = {k: [model.rank(h, k) for h in histories] for k in (1, 3)}
+    assert any(fast[3])
+    monkeypatch.setattr(SequenceModel, "_known_items", lambda self, items: None)
+    assert {k: [model.rank(h, k) for h in histories] for k in (1, 3)} == fast
+    monkeypatch.undo()
+    with pytest.raises(ParameterError, match="not hashable"):
+        model.predict(["a", ["b"]])

@@ -121,7 +121,6 @@ class Predictor:
         self._clock = -1
         self._acted: set = set()     # symbols the cached steps use as actions,
         self._observed: set = set()  # and as observations
-        self._first, self._last = np.zeros(1, np.int64), np.zeros(1, np.int64)  # one query's bounds
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -156,8 +155,7 @@ class Predictor:
         if getattr(self.library, "streams", None) is None:
             return self._literal(steps)
         self._refresh()
-        codes = self._encode_steps(steps, unknown_views)
-        return self._single_prediction(self._run_single(codes))
+        return self._single_prediction(self._run_flat(self._encode_steps(steps, unknown_views)))
 
     def predict_batch(self, episode: Episode, starts, ends,
                       unknown_views: np.ndarray | None = None) -> BatchPrediction:
@@ -191,12 +189,6 @@ class Predictor:
         return Prediction(tuple(ViewPrediction(v, name, None, 0.0, -1, "")
                                 for v, name in enumerate(self.library.view_names)))
 
-    def _run_single(self, codes: StepCodes) -> Reports:
-        """The last step of ``codes`` predicted from the steps before it (one query)."""
-        n = len(codes.action)
-        self._last[0] = n - 1
-        return self._run(codes, self._first, self._last, self._single)
-
     def _run_flat(self, flat: bytes) -> Reports:
         """The last step of the flat codes of ``_cached_codes`` predicted from the steps
         before it: one compiled call of three scalar arguments (the codes are copied into
@@ -215,13 +207,12 @@ class Predictor:
 
     def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: Buffers) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
-        ``i * views + v`` of ``buffers``' reports (``_buffers``; one query's are kept by
-        the predictor: allocating them costs more than the query)."""
+        ``i * views + v`` of the reports of ``buffers`` (new ones, ``_buffers``)."""
         library = self.library
         query = buffers.query._replace(action=codes.action, offsets=codes.offsets, view=codes.view,
                                        token=codes.token, starts=starts, ends=ends)
         table = _state_table((library.tree, library.mixer), buffers._replace(query=query))
-        _predict_queries(table, -1, buffers is self._single)
+        _predict_queries(table, -1, False)
         return buffers.out
 
     def _single_prediction(self, out: Reports) -> Prediction:
@@ -307,14 +298,14 @@ class Predictor:
             self._clock, self._answers = clock, {}
             forget(self._single.memo)
 
-    def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
+    def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> bytes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
-        observations dropped, through the token dictionary."""
+        observations dropped, through the token dictionary, as flat codes (``_codes_of``)."""
         steps = [(tuple(a), tuple(o)) for a, o in steps[:-1]] + [(tuple(steps[-1][0]), ())]
         return self._checked_codes(steps, unknown_views)
 
-    def _checked_codes(self, steps: list[Step], unknown_views: np.ndarray | None) -> StepCodes:
-        """Steps of tuples as codes, after the checks every query gets: actions only for a
+    def _checked_codes(self, steps: list[Step], unknown_views: np.ndarray | None) -> bytes:
+        """Steps of tuples as flat codes, after the checks every query gets: actions only for a
         library that learned them, symbols the library's views know (or ``unknown_views``
         places), no symbol both an action and an observation without a vocabulary."""
         library = self.library
@@ -363,9 +354,7 @@ class Predictor:
         a token for each) as the bytes of ``int32``s, checked as ``_encode_steps`` checks
         them, and cached (joining bytes is the cheapest way to one array)."""
         acts, obs = step
-        codes = self._checked_codes([step], None)
-        pairs = np.stack((codes.view, codes.token), axis=1).ravel()
-        code = np.concatenate(([codes.action[0], len(codes.view)], pairs)).astype(np.int32).tobytes()
+        code = self._checked_codes([step], None)
         if len(self._step_codes) >= _ANSWER_CACHE:
             self._step_codes, self._acted, self._observed = {}, set(), set()
         self._step_codes[step] = code
@@ -373,23 +362,23 @@ class Predictor:
         self._observed.update(obs)
         return code
 
-    def _codes_of(self, steps: list[Step], view_of) -> StepCodes:
-        """Steps as codes; ``view_of`` maps symbols to views (``None``: one joint view)."""
+    def _codes_of(self, steps: list[Step], view_of) -> bytes:
+        """Steps as flat codes, the bytes of ``int32``s: per step its action token, its
+        number of observation tokens, then a view and a token for each; ``view_of`` maps
+        symbols to views (``None``: one joint view)."""
         token, known = self._token, self._token_of.get
-        actions, offsets, views, tokens = [], [0], [], []
+        flat: list[int] = []
         for acts, obs in steps:
             key = (ACTION, acts)
             t = known(key)
-            actions.append(t if t is not None else token(*key))
-            if obs:
-                for v, group in ((0, obs),) if view_of is None else _by_view(obs, view_of):
-                    key = (OBSERVATION, group)
-                    t = known(key)
-                    views.append(v)
-                    tokens.append(t if t is not None else token(*key))
-            offsets.append(len(views))
-        return StepCodes(np.array(actions, np.int32), np.array(offsets, np.int64),
-                         np.array(views, np.int32), np.array(tokens, np.int32))
+            flat.append(t if t is not None else token(*key))
+            groups = (((0, obs),) if view_of is None else _by_view(obs, view_of)) if obs else ()
+            flat.append(len(groups))
+            for v, group in groups:
+                key = (OBSERVATION, group)
+                t = known(key)
+                flat += (v, t if t is not None else token(*key))
+        return np.array(flat, np.int32).tobytes()
 
     def _literal(self, steps: list[Step]) -> Prediction:
         library = self.library
