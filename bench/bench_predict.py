@@ -11,7 +11,10 @@ action):
   so is the rate on the distinct queries alone (every query new to its predictor);
 - ``Predictor.predict_batch``, all queries in one call (issue 12: >= 2,000,000/s), against
   the frozen replay core (``library.run`` over the held-out episode, one prediction per step,
-  the path ``slearn replay`` takes).
+  the path ``slearn replay`` takes);
+- ``SequenceModel.predict`` and ``predict_many`` (the sequence API) on a text of
+  ``--text-chars`` characters from a random source of order 2 (seeded), histories of 5
+  items, against a dict model of contexts of 1..5 items (its most frequent next item).
 
 Rates are in CPU time of this process (the machine may be shared); best of ``--repeat``.
 Run: ``python bench/bench_predict.py [--train 20000] [--queries 20000] [--json]``.
@@ -80,7 +83,7 @@ def new_predictor(library, warm_up: tuple) -> Predictor:
     return predictor
 
 
-def measure(condition: str, train: int, queries: int, repeat: int) -> dict:
+def measure(condition: str, train: int, queries: int, repeat: int, text_chars: int = 100_000) -> dict:
     library = PatternLibrary()
     train_episode = simulate(PointerConfig(condition, trials=train, seed=1)).to_episode()
     library.learn(train_episode)
@@ -112,8 +115,67 @@ def measure(condition: str, train: int, queries: int, repeat: int) -> dict:
     said = [predictor.prediction(batch, i).observations for i in range(len(calls))]
     truth = [steps[e][1] for e in ends.tolist()]
     out["batch_accuracy"] = float(np.mean([s == t for s, t in zip(said, truth)]))
+    text = measure_sequences(text_chars, repeat)
+    out.update({k if k != "queries" else "queries_text": v for k, v in text.items()})
     out["dict_model_accuracy"] = float(np.mean([naive.predict(x, a) == t for (x, a), t in zip(calls, truth)]))
     return out
+
+
+def source_text(chars: int, seed: int = 0) -> str:
+    """Characters of a random source of order 2 over 20 letters (each pair of letters has
+    three likely successors)."""
+    rng = np.random.default_rng(seed)
+    letters = "abcdefghijklmnopqrst"
+    successors = rng.integers(0, len(letters), (len(letters), len(letters), 3))
+    out = [0, 1]
+    for _ in range(chars - 2):
+        options = successors[out[-2], out[-1]]
+        out.append(int(options[0] if rng.random() < 0.7 else options[rng.integers(1, 3)]))
+    return "".join(letters[i] for i in out)
+
+
+class ItemDictModel:
+    """The anchor of the sequence API: contexts of 1..order items -> the most frequent next."""
+
+    def __init__(self, order: int) -> None:
+        self.order = order
+        self.best: dict[tuple, object] = {}
+
+    def learn(self, items) -> None:
+        counts: dict[tuple, Counter] = {}
+        for t in range(1, len(items)):
+            for k in range(1, min(self.order, t) + 1):
+                counts.setdefault(tuple(items[t - k:t]), Counter())[items[t]] += 1
+        self.best = {c: counter.most_common(1)[0][0] for c, counter in counts.items()}
+
+    def predict(self, history):
+        for k in range(min(self.order, len(history)), 0, -1):
+            found = self.best.get(tuple(history[-k:]))
+            if found is not None:
+                return found
+        return None
+
+
+def measure_sequences(chars: int, repeat: int) -> dict:
+    from slearn import SequenceModel
+
+    text = source_text(chars)
+    cut = int(len(text) * 0.8)
+    model, naive = SequenceModel(), ItemDictModel(5)
+    model.learn(text[:cut])
+    naive.learn(text[:cut])
+    held_out = text[cut:]
+    histories = [held_out[i - 5:i] for i in range(5, len(held_out))]
+    truth = [held_out[i] for i in range(5, len(held_out))]
+    model.predict(histories[0])
+    said = model.predict_many(histories)
+    return {"chars": chars, "queries": len(histories),
+            "sequence_predict_per_s": best_rate(lambda: [model.predict(h) for h in histories], len(histories),
+                                                repeat),
+            "sequence_many_per_s": best_rate(lambda: model.predict_many(histories), len(histories), repeat),
+            "item_dict_per_s": best_rate(lambda: [naive.predict(h) for h in histories], len(histories), repeat),
+            "sequence_accuracy": float(np.mean([s == t for s, t in zip(said, truth)])),
+            "item_dict_accuracy": float(np.mean([naive.predict(h) == t for h, t in zip(histories, truth)]))}
 
 
 def render(r: dict) -> str:
@@ -128,7 +190,13 @@ def render(r: dict) -> str:
         f"{r['dict_model_new_per_s']:>10,.0f}/s   ratio {r['predict_new_per_s'] / r['dict_model_new_per_s']:.3f}",
         f"predict_batch               {r['batch_per_s']:>12,.0f}/s   replay core "
         f"{r['replay_core_per_s']:>9,.0f}/s   ratio {r['batch_per_s'] / r['replay_core_per_s']:.3f}   "
-        f"target 2,000,000/s ({r['batch_per_s'] / 2_000_000:.2f} of it)"])
+        f"target 2,000,000/s ({r['batch_per_s'] / 2_000_000:.2f} of it)",
+        f"sequence API, {r['queries_text']:,} next characters of a text (accuracy: slearn "
+        f"{r['sequence_accuracy']:.3f}, dict model {r['item_dict_accuracy']:.3f})",
+        f"SequenceModel.predict       {r['sequence_predict_per_s']:>12,.0f}/s   dict model "
+        f"{r['item_dict_per_s']:>10,.0f}/s   ratio {r['sequence_predict_per_s'] / r['item_dict_per_s']:.3f}",
+        f"SequenceModel.predict_many  {r['sequence_many_per_s']:>12,.0f}/s   dict model "
+        f"{r['item_dict_per_s']:>10,.0f}/s   ratio {r['sequence_many_per_s'] / r['item_dict_per_s']:.3f}"])
 
 
 def main() -> None:
@@ -137,9 +205,10 @@ def main() -> None:
     parser.add_argument("--train", type=int, default=20_000)
     parser.add_argument("--queries", type=int, default=20_000)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--text-chars", type=int, default=100_000)
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
-    result = measure(args.condition, args.train, args.queries, args.repeat)
+    result = measure(args.condition, args.train, args.queries, args.repeat, args.text_chars)
     print(json.dumps(result, indent=2) if args.json else render(result))
 
 

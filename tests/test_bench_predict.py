@@ -15,14 +15,14 @@ from slearn.recorders.pointer import PointerConfig, simulate  # noqa: E402
 
 
 def test_the_bench_prints_every_figure_with_its_anchor():
-    result = bench_predict.measure("delay", train=600, queries=300, repeat=1)
+    result = bench_predict.measure("delay", train=600, queries=300, repeat=1, text_chars=2000)
     assert 0.0 < result["repeated_share"] < 1.0
     for rate in ("predict_per_s", "predict_new_per_s", "dict_model_per_s", "dict_model_new_per_s",
                  "batch_per_s", "replay_core_per_s"):
         assert result[rate] > 0
     assert 0.3 < result["batch_accuracy"] <= 1.0 and 0.3 < result["dict_model_accuracy"] <= 1.0
     text = bench_predict.render(result)
-    assert "every query new" in text and "queries asked before" in text
+    assert "every query new" in text and "queries asked before" in text and "SequenceModel.predict_many" in text
 
 
 def test_a_new_predictor_answers_as_the_batch_does():
@@ -37,3 +37,12 @@ def test_a_new_predictor_answers_as_the_batch_does():
     batch = Predictor(library).predict_batch(held_out, [e - h for e in range(h, len(held_out))],
                                              list(range(h, len(held_out))))
     assert said == [predictor.prediction(batch, i) for i in range(len(calls))]
+
+
+def test_the_sequence_api_figures_come_with_their_anchor():
+    result = bench_predict.measure_sequences(chars=3000, repeat=1)
+    assert result["queries"] == 3000 - int(3000 * 0.8) - 5
+    for rate in ("sequence_predict_per_s", "sequence_many_per_s", "item_dict_per_s"):
+        assert result[rate] > 0
+    # an order-2 source: both models learn it; neither can beat its 70 % ceiling by much
+    assert 0.5 < result["sequence_accuracy"] < 0.8 and 0.5 < result["item_dict_accuracy"] < 0.8
