@@ -481,8 +481,8 @@ def forget(memo: Memo) -> None:
 
 class Query(NamedTuple):
     """What a query run asks: the run's scalars (``has_actions``, ``empty_action``,
-    ``empty_observation``), then either a single query's flat codes (``Predictor.
-    _cached_codes``) or encoded steps and each query's bounds."""
+    ``empty_observation``), then either a single query's flat codes (see
+    ``Predictor._codes_of``) or encoded steps and each query's bounds."""
 
     run: np.ndarray      # int32[3]
     flat: np.ndarray     # int32
