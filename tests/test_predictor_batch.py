@@ -180,7 +180,7 @@ def test_predict_through_the_step_cache_equals_the_general_path(monkeypatch):
         same_answers(episode.steps())  # values not learned yet
         library.learn(episode)
         same_answers(episode.steps())
-    monkeypatch.setattr(predictor_module, "_ANSWER_CACHE", 8)
+    monkeypatch.setattr(predictor_module, "_STEP_CODES", 8)
     same_answers(random_episode(rng, 300, observations=9).steps())
     assert len(predictor._step_codes) <= 8
     with pytest.raises(ParameterError, match="both as an action and as an observation"):
@@ -292,3 +292,20 @@ def test_a_history_longer_than_the_single_querys_buffer_grows_it():
         assert [v.score for v in said.views] == expected[1].tolist()
         assert said == predictor.predict_unknown(list(history) + [(actions, ())])
     assert len(predictor._single.query.flat) >= 4 * 399
+
+
+def test_long_histories_are_answered_but_not_remembered():
+    """A remembered query keeps its steps: only histories of up to _KEY_STEPS steps are
+    remembered, so asking with a whole growing history keeps the memory flat."""
+    from slearn.core.predictor import _KEY_STEPS
+    rng = np.random.default_rng(13)
+    library = PatternLibrary(max_length=3)
+    library.learn(random_episode(rng, 300))
+    steps = random_episode(rng, 400).steps()
+    predictor = Predictor(library)
+    for e in range(_KEY_STEPS + 1, 400, 7):
+        said = predictor.predict(steps[:e], steps[e][0])
+        assert said == predictor.predict_unknown(steps[:e] + [(steps[e][0], ())])
+    assert predictor._answers == {}
+    predictor.predict(steps[:_KEY_STEPS], steps[_KEY_STEPS][0])
+    assert len(predictor._answers) == 1

@@ -131,9 +131,9 @@ class Predictor:
         if library.clock and library.view_names and getattr(library, "streams", None) is not None:
             self._refresh()
             actions = actions if type(actions) is tuple else tuple(actions)
-            key: tuple | None = (tuple(history), actions)
+            key: tuple | None = (tuple(history), actions) if len(history) <= _KEY_STEPS else None
             try:
-                said = self._answers.get(key)
+                said = self._answers.get(key) if key is not None else None
             except TypeError:  # steps of lists: not a key
                 key, said = None, None
             if said is not None:
@@ -355,7 +355,7 @@ class Predictor:
         them, and cached (joining bytes is the cheapest way to one array)."""
         acts, obs = step
         code = self._checked_codes([step], None)
-        if len(self._step_codes) >= _ANSWER_CACHE:
+        if len(self._step_codes) >= _STEP_CODES:
             self._step_codes, self._acted, self._observed = {}, set(), set()
         self._step_codes[step] = code
         self._acted.update(acts)
@@ -537,7 +537,10 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
                            out.top.reshape(shape + (top_k,)), out.top_p.reshape(shape + (top_k,)))
 
 
-_ANSWER_CACHE = 1 << 16  # steps, queries, answers a predictor remembers (each)
+_STEP_CODES = 1 << 16    # steps a predictor remembers the codes of
+_ANSWER_CACHE = 1 << 14  # queries, and answers, a predictor remembers (each)
+_KEY_STEPS = 64          # the longest history whose answer is remembered (memory: a query
+#                          remembered keeps its steps; a longer history is rarely asked again)
 
 
 def _kept(cache: dict, key, value) -> dict:
