@@ -309,3 +309,18 @@ def test_long_histories_are_answered_but_not_remembered():
     assert predictor._answers == {}
     predictor.predict(steps[:_KEY_STEPS], steps[_KEY_STEPS][0])
     assert len(predictor._answers) == 1
+
+
+def test_what_a_predictor_remembers_is_bounded_by_views(monkeypatch):
+    """An answer of many views is as large as many answers: the bound counts views."""
+    import slearn.core.predictor as predictor_module
+    monkeypatch.setattr(predictor_module, "_ANSWER_CACHE", 30)
+    library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(3))
+    library.learn(simulate_arm(ArmConfig(joints=3, trials=300, seed=8)).to_episode())
+    steps = simulate_arm(ArmConfig(joints=3, trials=300, seed=9)).to_episode().steps()
+    predictor = Predictor(library)
+    sizes = set()
+    for e in range(4, 300):
+        predictor.predict(steps[e - 4:e], steps[e][0])
+        sizes.add((len(predictor._answers), len(predictor._made)))
+    assert max(a for a, _ in sizes) == 10 and max(m for _, m in sizes) <= 10

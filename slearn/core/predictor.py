@@ -142,7 +142,7 @@ class Predictor:
             if flat is not None:
                 said = self._single_prediction(self._run_flat(flat))
                 if key is not None:
-                    self._answers = _kept(self._answers, key, said)
+                    self._answers = _kept(self._answers, key, said, self._n_views())
                 return said
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
@@ -224,7 +224,7 @@ class Predictor:
         made = self._made.get(key)
         if made is None:
             made = self._prediction_of(*(a.tolist() for a in said))
-            self._made = _kept(self._made, key, made)
+            self._made = _kept(self._made, key, made, self._n_views())
         return made
 
     def _prediction_of(self, token: list, score: list, length: list, kind: list, top: list,
@@ -538,15 +538,16 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
 
 
 _STEP_CODES = 1 << 16    # steps a predictor remembers the codes of
-_ANSWER_CACHE = 1 << 14  # queries, and answers, a predictor remembers (each)
+_ANSWER_CACHE = 1 << 14  # views' answers a predictor remembers, per query and per answer
 _KEY_STEPS = 64          # the longest history whose answer is remembered (memory: a query
 #                          remembered keeps its steps; a longer history is rarely asked again)
 
 
-def _kept(cache: dict, key, value) -> dict:
-    """``cache`` with ``key: value``, emptied first when full (answers of a stream repeat:
-    what was asked recently comes back soon)."""
-    if len(cache) >= _ANSWER_CACHE:
+def _kept(cache: dict, key, value, n_views: int) -> dict:
+    """``cache`` with ``key: value``, emptied first when full: when it holds the answers of
+    ``_ANSWER_CACHE`` views (an answer of many views is as large as many answers). What was
+    asked recently comes back soon in a stream."""
+    if len(cache) * max(n_views, 1) >= _ANSWER_CACHE:
         cache = {}
     cache[key] = value
     return cache
