@@ -81,31 +81,36 @@ class SequenceModel:
         """:meth:`predict` for many histories, in one compiled call (the same answers)."""
         if self.library is None:
             return [None for _ in histories]
-        # The rows _lookup_steps makes of ({}, {ITEM: item}) steps, each followed by an empty
-        # query step, without a mapping per item: a value never seen gets a symbol past the
-        # vocabulary (one per occurrence), in the item view if the library has one.
-        get, known = self.vocabulary.get_symbol, len(self.vocabulary)
-        unknown_view = {name: i for i, name in enumerate(self.library.view_names)}.get(ITEM, -1)
-        rows: list = []
-        unknown: list[int] = []
-        starts, ends = [], []
-        for history in histories:
-            starts.append(len(rows))
-            for item in self._tail(history):
-                try:
-                    s = get(ITEM, item)
-                except TypeError:
-                    s = self._symbol(ITEM, item, learn=False)  # raises: not hashable
-                if s is None:
-                    s = known + len(unknown)
-                    unknown.append(unknown_view)
-                rows.append(((), (s,)))
-            ends.append(len(rows))
-            rows.append(((), ()))
-        if not ends:
+        # The episode _lookup_steps would make of ({}, {ITEM: item}) steps, each history
+        # followed by an empty query step, built as arrays: a value never seen gets a symbol
+        # past the vocabulary (one per occurrence), in the item view if the library has one.
+        tails = [self._tail(history) for history in histories]
+        if not tails:
             return []
+        items = [item for tail in tails for item in tail]
+        try:
+            item_symbols = self.vocabulary.get_symbols(ITEM, items)
+        except TypeError:
+            for item in items:
+                self._symbol(ITEM, item, learn=False)  # raises for the one not hashable
+            raise
+        unknown: list[int] = []
+        if None in item_symbols:
+            item_view = {name: i for i, name in enumerate(self.library.view_names)}.get(ITEM, -1)
+            known = len(self.vocabulary)
+            for i, found in enumerate(item_symbols):
+                if found is None:
+                    item_symbols[i] = known + len(unknown)
+                    unknown.append(item_view)
+        lengths = np.array([len(tail) for tail in tails], np.int64)
+        ends = np.cumsum(lengths + 1) - 1
+        starts = ends - lengths
+        sizes = np.ones(int(ends[-1]) + 1, np.int64)
+        sizes[ends] = 0  # the query steps
+        episode = Episode(np.array(item_symbols, np.int32), np.concatenate(([0], np.cumsum(sizes))),
+                          np.zeros(len(sizes), np.int32))
         predictor = self._predictor_for(1)
-        batch = predictor.predict_batch(Episode.from_steps(rows), starts, ends, np.asarray(unknown, np.int32))
+        batch = predictor.predict_batch(episode, starts, ends, np.asarray(unknown, np.int32))
         names = self.library.view_names
         view = next((i for i, name in enumerate(names) if name in (ITEM, "*")), None)
         if view is None:

@@ -53,6 +53,11 @@ class Vocabulary:
         """The symbol of ``(channel, value)`` or ``None`` when it was never registered."""
         return self._symbols.get((channel, value))
 
+    def get_symbols(self, channel: str, values: Iterable[Hashable]) -> list[int | None]:
+        """:meth:`get_symbol` of each value (raises ``TypeError`` for one not hashable)."""
+        get = self._symbols.get
+        return [get((channel, value)) for value in values]
+
     def name(self, symbol: int) -> tuple[str, Hashable]:
         """``(channel, value)`` of a symbol."""
         return self._names[symbol]
