@@ -196,9 +196,9 @@ class Predictor:
                                 for v, name in enumerate(self.library.view_names)))
 
     def _run_flat(self, flat: bytes) -> Reports:
-        """The last step of the flat codes of ``_cached_codes`` predicted from the steps
-        before it: one compiled call of three scalar arguments (the codes are copied into
-        the single query's buffer, which its kept address table points to)."""
+        """The last step of flat codes (``_codes_of``) predicted from the steps before it:
+        one compiled call of three scalar arguments (the codes are copied into the single
+        query's buffer, which its kept address table points to)."""
         size = len(flat) // 4
         if size > len(self._single.query.flat):
             self._single = self._single._replace(query=single_query(self._single.query.run, size))
