@@ -220,9 +220,8 @@ class SequenceModel:
         """The items' symbols, or ``None`` when one was never seen (or nothing was learned)."""
         if self.library is None:
             return None
-        get = self.vocabulary.get_symbol
         try:
-            symbols = [get(ITEM, item) for item in items]
+            symbols = self.vocabulary.get_symbols(ITEM, items)
         except TypeError:  # not hashable: the general path says so
             return None
         return None if None in symbols else symbols  # type: ignore[return-value]

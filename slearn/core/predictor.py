@@ -201,8 +201,7 @@ class Predictor:
         query's buffer, which its kept address table points to)."""
         size = len(flat) // 4
         if size > len(self._single.query.flat):
-            self._single = self._single._replace(query=single_query(self._single.query.run, size))
-            self._single_state, self._flat_bytes = (None, None), self._single.query.flat.data.cast("B")
+            self._use_single(self._single._replace(query=single_query(self._single.query.run, size)))
         library = self.library
         if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
             self._single_table = state_table((library.tree, library.mixer), self._single)
@@ -210,6 +209,11 @@ class Predictor:
         self._flat_bytes[:len(flat)] = flat
         predict_queries(self._single_table, size, True)
         return self._single.out
+
+    def _use_single(self, buffers: Buffers) -> None:
+        """Take ``buffers`` for single queries (their address table is made on first use)."""
+        self._single, self._single_state = buffers, (None, None)
+        self._flat_bytes = buffers.query.flat.data.cast("B")
 
     def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: Buffers) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
@@ -296,9 +300,8 @@ class Predictor:
             self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
             self._made = {}
             self._step_codes, self._acted, self._observed = {}, set(), set()
-            self._single = new_buffers(library, 1, self.top_k, SINGLE_MEMO_SLOTS)
-            self._single = self._single._replace(query=single_query(self._single.query.run, 64))
-            self._single_state, self._flat_bytes = (None, None), self._single.query.flat.data.cast("B")
+            buffers = new_buffers(library, 1, self.top_k, SINGLE_MEMO_SLOTS)
+            self._use_single(buffers._replace(query=single_query(buffers.query.run, 64)))
             self._clock = -1
         if clock != self._clock:
             self._clock, self._answers = clock, {}
@@ -330,13 +333,12 @@ class Predictor:
         return self._codes_of(steps, view_of)
 
     def _cached_codes(self, history, actions: tuple) -> bytes | None:
-        """``_encode_steps(history + [(actions, ())])`` as the bytes of flat ``int32`` codes
-        (per step its action token, its number of observations, then a view and a token
-        for each; ``predict_queries`` reads them), through a dictionary of steps already
-        encoded (a stream's steps repeat), or ``None`` when a step is not a tuple of tuples
-        (then the general path encodes it). Checks what ``_encode_steps`` checks: an unseen
-        step on entry; a symbol used both as an action and as an observation across the
-        steps only while the cached steps do so at all (otherwise no query of them can)."""
+        """``_encode_steps(history + [(actions, ())])`` (flat codes, ``_codes_of``) through a
+        dictionary of steps already encoded (a stream's steps repeat), or ``None`` when a
+        step is not a tuple of tuples (then the general path encodes it). Checks what
+        ``_encode_steps`` checks: an unseen step on entry; a symbol used both as an action
+        and as an observation across the steps only while the cached steps do so at all
+        (otherwise no query of them can)."""
         cache = self._step_codes
         last = (actions, ())
         parts = []
@@ -356,9 +358,8 @@ class Predictor:
         return b"".join(parts)
 
     def _step_code(self, step: Step) -> bytes:
-        """One step's codes (its action token, its number of observations, then a view and
-        a token for each) as the bytes of ``int32``s, checked as ``_encode_steps`` checks
-        them, and cached (joining bytes is the cheapest way to one array)."""
+        """One step's flat codes (``_codes_of``), checked as ``_encode_steps`` checks them,
+        and cached (joining cached bytes is the cheapest way to one query's array)."""
         acts, obs = step
         code = self._checked_codes([step], None)
         if len(self._step_codes) >= _STEP_CODES:

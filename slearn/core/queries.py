@@ -27,9 +27,10 @@ class Memo(NamedTuple):
     """Answers a query run remembers, in direct-mapped slots: by a view's context (its last
     tokens, ``window[slot] = (view, tokens...)``, ``depth`` -1 when empty; the answer in
     row ``slot``), and rankings by the chosen context and expert (``rank_key``, -1 when
-    empty; the answer in row ``slots + slot``). Frozen, an answer whose outcome is unknown
-    is a function of the view's context alone: it fixes the contexts found, the experts'
-    candidates, the choice (the weights do not move) and the ranking."""
+    empty; the answer in row ``slots + slot``). Frozen, a prediction is a function of the
+    view's context alone: it fixes the contexts found, the experts' candidates, the choice
+    (the weights do not move) and the ranking (a query's outcome is never known here, so
+    no report's ``truth_p`` depends on it)."""
 
     depth: np.ndarray      # int32 (slots,)
     window: np.ndarray     # int32 (slots, max_context + 1)
@@ -76,7 +77,6 @@ class Buffers(NamedTuple):
 
     scratch: ViewState  # streams the history is replayed on
     out: Reports
-    q_token: np.ndarray  # the outcome of each report (unknown)
     memo: Memo
     query: Query
 
@@ -95,7 +95,7 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     if slots is None:
         slots = 1 << max(0, min(n, MEMO_SLOTS) - 1).bit_length()
     return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
-                   np.full(n, UNKNOWN, np.int32), new_memo(slots, library.max_context, max(top_k, 1)),
+                   new_memo(slots, library.max_context, max(top_k, 1)),
                    Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64))
 
 
@@ -109,17 +109,16 @@ def single_query(run: np.ndarray, size: int) -> Query:
 
 def state_table(state: tuple, buffers: Buffers) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``predict_queries``
-    reads them: the tree's fields, the mixer's, the scratch streams', the reports',
-    ``q_token``, the memo's, then the query's. The caller keeps them alive."""
+    reads them: the tree's fields, the mixer's, the scratch streams', the reports', the
+    memo's, then the query's. The caller keeps them alive."""
     tree, mixer = state
-    scratch, out, q_token, memo, query = buffers
-    return address_table((*tree, *mixer, *scratch, *out, q_token, *memo, *query))
+    scratch, out, memo, query = buffers
+    return address_table((*tree, *mixer, *scratch, *out, *memo, *query))
 
 
 _TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
     len(Tree._fields) + len(Mixer._fields) + len(ViewState._fields)
-_QUERY = _OUT + len(Reports._fields)
-_MEMO_AT = _QUERY + 1
+_MEMO_AT = _OUT + len(Reports._fields)
 _QUERY_AT = _MEMO_AT + len(Memo._fields)
 
 
@@ -127,8 +126,8 @@ _QUERY_AT = _MEMO_AT + len(Memo._fields)
 def predict_queries(table, n_flat, reused):
     """For query ``i`` of the table's :class:`Query`: replay steps ``starts[i]..ends[i] - 1``
     on fresh scratch streams, as if they were an episode of their own, then predict every view at step ``ends[i]`` (its
-    action pushed) as ``run_codes`` does frozen: rows ``i * views ..`` of ``out``, with
-    ``q_token`` as the outcome. ``n_flat >= 0``: one query, the first ``n_flat`` flat
+    action pushed) as ``run_codes`` does frozen, its outcome unknown: rows ``i * views ..``
+    of ``out``. ``n_flat >= 0``: one query, the first ``n_flat`` flat
     codes. ``out`` holds abstentions (``new_reports``) unless ``reused`` (then each query's
     rows are reset first). Answers with an unknown outcome are remembered in the table's
     :class:`Memo`, which stays valid while the library does not learn. Everything comes
@@ -150,7 +149,6 @@ def predict_queries(table, n_flat, reused):
                   vector(table, o + 3, f64), vector(table, o + 4, f64), matrix(table, o + 5, i32),
                   matrix(table, o + 6, f64), vector(table, o + 7, np.bool_), vector(table, o + 8, i32),
                   vector(table, o + 9, i32), vector(table, o + 10, i32))
-    q_token = vector(table, _QUERY, i32)
     parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     outcome, count, last_seen, fresh, nxt = tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next
@@ -211,10 +209,9 @@ def predict_queries(table, n_flat, reused):
                 continue
             r = r0 + v
             out.context[r] = True
-            truth_unknown = q_token[r] == UNKNOWN
             slot = _window_slot(recent, filled, v, depth, size)
             recalled, keep = -1, -1  # memo rows: the answer's, and a ranking's to keep
-            if truth_unknown and _same_window(recent, filled, v, depth, memo_depth, memo_window, slot):
+            if _claim_window(recent, filled, v, depth, memo_depth, memo_window, slot):
                 recalled = slot
             else:
                 node, n = root[v], 0
@@ -229,17 +226,16 @@ def predict_queries(table, n_flat, reused):
                     k_sel, kind = select(weights, v, cand, found)
                     key = np.int64(nodes[k_sel]) * N_KINDS + kind
                     rank_slot = key & (size - 1)
-                    if truth_unknown and rank_key[rank_slot] == key:
+                    if rank_key[rank_slot] == key:
                         recalled = size + rank_slot
                     else:  # the chosen context and the shorter ones first: they fill the ranking
-                        record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                        record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], UNKNOWN,
                                           first, nxt, count, fresh, last_seen, outcome, nodes, k_sel, ranked)
                         if out.top[r, top_k - 1] >= 0:  # then they alone fix the answer (a longer
-                            if truth_unknown:  # context's counted outcomes are its suffixes': test_library)
-                                rank_key[rank_slot] = key
-                                keep = size + rank_slot
+                            rank_key[rank_slot] = key  # context's counted outcomes are its suffixes':
+                            keep = size + rank_slot  # test_library)
                         elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
-                            record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], q_token[r],
+                            record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], UNKNOWN,
                                               first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
             # (the copies are written out: a helper's call with a dozen arrays cost a tenth of a batch)
             if recalled >= 0:
@@ -248,8 +244,7 @@ def predict_queries(table, n_flat, reused):
                 out.score[r] = memo_score[recalled]
                 for k in range(top_k):
                     out.top[r, k], out.top_p[r, k] = memo_top[recalled, k], memo_p[recalled, k]
-            if truth_unknown and recalled != slot:
-                _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot)
+            if recalled != slot:  # the window was claimed: its answer
                 for row in (slot, keep):
                     if row >= 0:
                         memo_said[row], memo_length[row], memo_kind[row] = out.predicted[r], out.length[r], \
@@ -272,34 +267,25 @@ def _window_slot(recent, filled, v, depth, size):
 
 
 @helper
-def _same_window(recent, filled, v, depth, memo_depth, memo_window, slot):
-    """Whether ``slot`` holds view ``v``'s last ``depth`` tokens (of this view)."""
-    if memo_depth[slot] != depth or memo_window[slot, 0] != v:
-        return False
+def _claim_window(recent, filled, v, depth, memo_depth, memo_window, slot):
+    """Whether ``slot`` holds view ``v``'s last ``depth`` tokens; if not, it does from now
+    on (the caller then stores the answer in its row)."""
     K = recent.shape[1]
+    same = memo_depth[slot] == depth and memo_window[slot, 0] == v
     at = (filled[v] - 1) % K
     for k in range(1, depth + 1):
-        if memo_window[slot, k] != recent[v, at]:
-            return False
-        at = at - 1 if at > 0 else K - 1
-    return True
-
-
-@helper
-def _keep_window(recent, filled, v, depth, memo_depth, memo_window, slot):
-    """Mark ``slot`` as holding view ``v``'s last ``depth`` tokens."""
-    K = recent.shape[1]
-    memo_depth[slot] = depth
-    memo_window[slot, 0] = v
-    at = (filled[v] - 1) % K
-    for k in range(1, depth + 1):
+        if same and memo_window[slot, k] != recent[v, at]:
+            same = False
         memo_window[slot, k] = recent[v, at]
         at = at - 1 if at > 0 else K - 1
+    memo_depth[slot] = depth
+    memo_window[slot, 0] = v
+    return same
 
 
 @helper
 def _steps_of(flat, n_flat, action, offsets, view, token, starts, ends):
-    """The first ``n_flat`` flat codes (``Predictor._cached_codes``) as the steps of one
+    """The first ``n_flat`` flat codes (``Predictor._codes_of``) as the steps of one
     query (actions, offsets, views, tokens) and its bounds: every step but the last is its
     history."""
     j, r, step = 0, 0, 0
