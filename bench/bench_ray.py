@@ -44,6 +44,7 @@ from slearn.jobs.distributed import RayReader
 from slearn.jobs.learn import learn_files
 from slearn.jobs.merge import merge_libraries
 from slearn.jobs.merge_tree import learn_on_ray
+from slearn.jobs.pages import small_pages
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 from slearn.replay.replay_logs import replay_logs
@@ -147,9 +148,14 @@ def main() -> None:
     parser.add_argument("--condition", default="error")
     parser.add_argument("--repeat", type=int, default=5,
                         help="pairs of runs (one process, then --workers)")
+    parser.add_argument("--system-pages", action="store_true",
+                        help="keep the system's transparent huge pages (the CLI turns them off: "
+                             "slearn.jobs.pages)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     os.environ.setdefault("SOURCE_DATE_EPOCH", "0")
+    if not args.system_pages:
+        small_pages()  # as the command line does; the local Ray started below inherits it
     m = measure(args)
     model = scaling_model(m)
     if args.json:

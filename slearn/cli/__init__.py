@@ -83,3 +83,6 @@ def main() -> None:
                            256, 1 to 1048576); a larger chunk is skipped with a warning (exit 3)
       SOURCE_DATE_EPOCH    the time recorded in a library's provenance (0 to 253402300799)
     """
+    from slearn.jobs.pages import small_pages
+
+    small_pages()  # before any job allocates: see slearn.jobs.pages

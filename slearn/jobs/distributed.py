@@ -39,6 +39,7 @@ from slearn.io.serialize import prepare_vocabulary, read_episodes
 from slearn.io.slicing import TimeSlice, slice_from_dict
 from slearn.io.spec import Spec
 from slearn.jobs.cluster import MAX_RETRIES, Rate, check_visible, gather
+from slearn.jobs.pages import small_pages
 
 IN_FLIGHT_PER_CPU = 2
 
@@ -129,6 +130,7 @@ def read_log(path: str, spec: dict, source: str, window: dict | None) -> dict:
     """The task: one log read with a vocabulary of its own, as plain data: ``episodes``
     (name, symbols, step offsets, actions per step), ``vocabulary`` (``(channel, value)``
     per symbol), ``report`` (the read report's fields), ``warnings``, ``events``."""
+    small_pages()
     check_visible(path)
     vocabulary = Vocabulary()
     episodes, report = [], ReadReport(path)

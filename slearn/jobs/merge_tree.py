@@ -56,6 +56,7 @@ from slearn.jobs.cluster import (
 )
 from slearn.jobs.learn import LearnResult, _new_job, _resumed_job, build_provenance, checked_inputs, source_date_epoch
 from slearn.jobs.merge import merge_libraries
+from slearn.jobs.pages import small_pages
 
 # A partial library's provenance: the job writes the real one (every input, in order).
 _PARTIAL = {"slearn_version": __version__, "inputs": [], "time_unix": 0,
@@ -144,6 +145,7 @@ def learn_log(path: str, spec: dict, source: str, max_length: int,
     """The task: one log learned from empty. Returns its stats (``record`` for the
     provenance, ``truncated`` read report, ``warnings``) and its library file's bytes
     (``None`` when it has no step)."""
+    small_pages()
     check_visible(path)
     spec_object = Spec.from_dict(spec, source)
     vocabulary = Vocabulary()
@@ -170,6 +172,7 @@ def learn_log(path: str, spec: dict, source: str, max_length: int,
 
 def merge_pair(a: bytes | None, b: bytes | None) -> bytes | None:
     """The task: the library of ``a``'s episodes, then ``b``'s (file bytes; ``None`` is empty)."""
+    small_pages()
     if a is None or b is None:
         return a if b is None else b
     return loaded_bytes(merge_libraries(library_from_bytes(a), library_from_bytes(b)))
