@@ -158,7 +158,7 @@ def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: l
 
     if spec_path is None:
         raise InputError("no library: give a library file, or --spec FILE to start from an empty one")
-    spec = spec_path if isinstance(spec_path, Spec) else load_spec(spec_path)
+    spec = (spec_path if isinstance(spec_path, Spec) else load_spec(spec_path)).predicting()
     notes = ["no library: started from an empty one and learned online"]
     if not spec.fitted:
         spec = fit_spec(spec, logs, progress)

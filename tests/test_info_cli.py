@@ -75,7 +75,35 @@ def test_suggest_spec_learns_as_written(log, tmp_path):
     assert learned.exit_code == 0, learned.output
     refused = run(log, "--suggest-spec", target)
     assert refused.exit_code == 1 and "already exists: pass --force" in refused.stderr
-    assert run(log, "--suggest-spec", target, "--force").exit_code == 0
+    forced = run(log, "--suggest-spec", target, "--force")
+    assert forced.exit_code == 0 and "warning" not in forced.stderr
+
+
+@pytest.mark.parametrize("command", [False, True])
+def test_a_spec_with_nothing_to_predict_says_so_and_learn_refuses_it(tmp_path, command):
+    """Logs whose every field is free text (rosbag2's test bags), with or without a command
+    topic: the suggestion has no observation entry, says so in its header and on stderr,
+    and learn and replay refuse it in one line, writing nothing."""
+    messages = [(topic, 2 * i + k, {"data": f"Hello, world! {i} - {k}"})
+                for i in range(200) for k, topic in enumerate(("AAA", "BBB"))]
+    messages += [("/cmd", 2 * i, {"command": "LR"[i % 3 == 0]}) for i in range(200)] if command else []
+    path = write_log(tmp_path / "text.mcap", messages)
+    target = tmp_path / "spec.toml"
+    result = run(path, "--suggest-spec", target)
+    assert result.exit_code == 0
+    assert f"warning: {target} has no observation entry" in result.stderr
+    text = target.read_text()
+    assert "It learns as written" not in text and "it learns nothing as written" in text
+    assert text.count("skipped (free text (many distinct values)): data") == 2
+    assert ('\nrole = "action"' in text) == command  # an entry, not the header's advice
+    learned = CliRunner().invoke(main, ["learn", str(path), "--spec", str(target), "-o",
+                                        str(tmp_path / "lib.parquet")])
+    expected = "no [[channel]] entries" if not command else "no observation entry, so nothing to predict"
+    assert learned.exit_code == 1 and expected in learned.stderr and len(learned.stderr.splitlines()) == 1
+    assert not (tmp_path / "lib.parquet").exists()
+    if command:
+        replayed = CliRunner().invoke(main, ["replay", str(path), "--spec", str(target)])
+        assert replayed.exit_code == 1 and "no observation entry" in replayed.stderr
 
 
 def test_bursts_have_no_rate_and_topics_and_windows_select(tmp_path):

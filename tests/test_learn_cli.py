@@ -152,7 +152,8 @@ def test_refuses_to_overwrite_without_force(logs, tmp_path):
 def test_a_spec_that_does_not_fit_the_logs_is_one_line_and_touches_nothing(logs, tmp_path):
     out = tmp_path / "lib.parquet"
     out.write_bytes(b"precious")
-    result = learn(logs["simple"], "-o", out, "--force", "--channel", "/pointer/command:cmd:action")
+    result = learn(logs["simple"], "-o", out, "--force", "--channel", "/pointer/command:cmd:action",
+                   "--channel", "/pointer/position:position:observation")
     assert result.exit_code == 1
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("slearn: error: ")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tomllib
 
 import click
 
@@ -109,8 +110,13 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     else:
         click.echo("\n\n".join(_as_text(r, fields) for r in results))
     if spec_out:
-        write_atomic(spec_out, suggest_spec(logs), overwrite=force, inputs=paths)
+        text = suggest_spec(logs)
+        write_atomic(spec_out, text, overwrite=force, inputs=paths)
         click.echo(f"slearn: wrote spec {spec_out}", err=True)
+        if not any(e["role"] == "observation" for e in tomllib.loads(text).get("channel", [])):
+            click.echo(f"slearn: warning: {spec_out} has no observation entry: no field of these logs "
+                       "has values to predict (its comments say why); add one before slearn learn",
+                       err=True)
     broken = [log for log in logs if log.report.truncated]
     for log in broken:
         click.echo(f"slearn: warning: {log.report.describe()}", err=True)

@@ -325,6 +325,18 @@ class Spec:
                 f"from the others' history alone; if a topic carries commands (cmd, setpoint, "
                 f"goal), give it role = \"action\""]
 
+    def predicting(self) -> "Spec":
+        """This spec, for learning: it must have an observation entry (actions are given and
+        observations predicted, so a library of actions alone would stay empty).
+
+        Raises:
+            SpecError: no entry has the observation role.
+        """
+        if not any(c.role == OBSERVATION for c in self.channels):
+            raise SpecError(f"{self.source}: no observation entry, so nothing to predict (actions are "
+                            f"given, observations predicted): give an entry role = \"observation\"")
+        return self
+
     @property
     def fitted(self) -> bool:
         """True when every symbolizer is ready (quantile edges fitted)."""

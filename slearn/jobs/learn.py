@@ -144,7 +144,7 @@ def _new_job(paths: Sequence[str | os.PathLike], spec: Spec | None, max_length: 
              window: TimeSlice | None = None, one_read: bool = False) -> _Job:
     """A new job; ``one_read`` fits quantile bins in the read that learning then uses
     (:mod:`slearn.io.onepass`; only when this process reads the logs)."""
-    spec = spec if spec is not None else default_spec(os.fspath(paths[0]))
+    spec = (spec if spec is not None else default_spec(os.fspath(paths[0]))).predicting()
     vocabulary = Vocabulary()
     pieces = None
     if one_read and can_fit_in_one_pass(spec):

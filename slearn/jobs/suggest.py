@@ -240,12 +240,18 @@ def suggest_spec(profiles: Iterable[LogProfile]) -> str:
 def _header(profiles: list[LogProfile], actions: list, observations: list) -> list[str]:
     lines = ["# slearn spec suggested by `slearn info --suggest-spec` from:"]
     lines += [f"#   {p.path}" for p in profiles]
+    if observations:
+        lines += ["#",
+                  "# It learns as written. The uncommented entries are every command field and the",
+                  f"# {OBSERVATIONS_LIVE} best observation candidates; uncomment others to add them "
+                  "(each observation",
+                  "# channel makes every step's observation finer, so more must be seen to learn it)."]
+    else:
+        lines += ["#",
+                  "# It has no observation entry, so it learns nothing as written: no field of",
+                  "# these logs has values slearn can predict (each topic below says why its fields",
+                  "# were skipped). Add one (README: From your own logs) before `slearn learn`."]
     lines += ["#",
-              "# It learns as written. The uncommented entries are every command field and the",
-              f"# {OBSERVATIONS_LIVE} best observation candidates; uncomment others to add them (each "
-              "observation",
-              "# channel makes every step's observation finer, so more must be seen to learn it).",
-              "#",
               "# mode \"message\": every message of an entry is an event, so a step is a command and",
               "# the readings that follow it; repeated commands and unchanged readings are part of",
               "# the task. (\"change\" keeps only changes and predicts a different, easier-looking",
