@@ -28,9 +28,11 @@ from pathlib import Path
 from slearn.recorders.pointer import PointerConfig
 from slearn.recorders.record_pointer import record_pointer
 
+# The setting is inherited: each child starts with the system's, whatever ran this bench.
 _CHILD = r"""
-import sys
+import ctypes, sys
 import slearn.jobs.pages as pages
+ctypes.CDLL(None).prctl(pages.PR_SET_THP_DISABLE, 0, 0, 0, 0)
 if sys.argv[1] == "system":
     pages.small_pages = lambda: False
 from slearn.cli import main

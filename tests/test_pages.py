@@ -16,10 +16,12 @@ from slearn.recorders.record_pointer import record_pointer
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a Linux process setting")
 
 # Runs the command line in a fresh interpreter (``system`` first: small_pages does nothing),
-# then prints the process's transparent huge page setting.
+# then prints the process's transparent huge page setting. The setting is inherited, and
+# this test process may have run the command line already: the child starts it afresh.
 _CHILD = """
-import sys
+import ctypes, sys
 import slearn.jobs.pages as pages
+ctypes.CDLL(None).prctl(pages.PR_SET_THP_DISABLE, 0, 0, 0, 0)  # as a fresh shell would start it
 if sys.argv[1] == "system":
     pages.small_pages = lambda: False
 from slearn.cli import main
@@ -45,8 +47,10 @@ def log(tmp_path_factory):
 
 
 @linux_only
-def test_small_pages_turns_huge_pages_off_for_its_process_only():
-    code = ("from slearn.jobs.pages import small_pages\n"
+def test_small_pages_turns_huge_pages_off_for_its_process():
+    code = ("import ctypes\n"
+            "from slearn.jobs.pages import PR_SET_THP_DISABLE, small_pages\n"
+            "ctypes.CDLL(None).prctl(PR_SET_THP_DISABLE, 0, 0, 0, 0)\n"
             "before = [l.split()[1] for l in open('/proc/self/status') if l.startswith('THP_enabled:')]\n"
             "print(small_pages(), before)\n"
             "print([l.split()[1] for l in open('/proc/self/status') if l.startswith('THP_enabled:')])")
