@@ -191,6 +191,23 @@ def test_a_resumed_spec_that_does_not_fit_a_new_log_is_refused(logs, tmp_path):
     assert plain.exit_code == 1 and "not a pointer log (topics: /robot/mode): pass --spec" in plain.stderr
 
 
+def test_resuming_a_library_without_a_spec_needs_one_with_observations(logs, tmp_path):
+    from slearn.io.library_file import save_library
+
+    learn(logs["simple"], "-o", tmp_path / "lib.parquet")
+    loaded = load_library(tmp_path / "lib.parquet")
+    save_library(tmp_path / "bare.parquet", loaded.library, loaded.vocabulary, spec=None,
+                 params=loaded.params, provenance={})
+    args = (logs["delay"], "--resume", tmp_path / "bare.parquet", "-o", tmp_path / "more.parquet")
+    result = learn(*args, "--channel", "/pointer/command:command:action")
+    assert result.exit_code == 1 and result.stderr.count("\n") == 1
+    assert "no observation entry, so nothing to predict" in result.stderr
+    assert not (tmp_path / "more.parquet").exists()
+    both = learn(*args, "--channel", "/pointer/command:command:action",
+                 "--channel", "/pointer/position:position:observation")
+    assert both.exit_code == 0, both.output
+
+
 def test_resume_from_a_bad_library_is_a_one_line_error(logs, tmp_path):
     bad = tmp_path / "bad.parquet"
     bad.write_bytes(b"PAR1 this is not parquet")

@@ -177,8 +177,8 @@ def _resumed_job(resume: str, spec: Spec | None, max_length: int | None,
                          f"--resume keeps it (leave out --scoring)")
     if max_patterns is not None:
         library.max_patterns = max_patterns
-    return _Job(library, loaded.vocabulary, cast(Spec, loaded.spec or spec), dict(loaded.params),  # one is set
-                loaded.provenance)
+    spec = loaded.spec or cast(Spec, spec).predicting()  # one is set
+    return _Job(library, loaded.vocabulary, spec, dict(loaded.params), loaded.provenance)
 
 
 def checked_inputs(paths: Sequence[str | os.PathLike], output: str | os.PathLike, overwrite: bool,
