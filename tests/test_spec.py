@@ -176,19 +176,6 @@ def test_missing_file(tmp_path):
         load_spec(tmp_path / "none.toml")
 
 
-def test_resolve_spec(tmp_path):
-    from slearn.io.spec import resolve_spec
-    assert resolve_spec() is None
-    path = _write(tmp_path, GOOD)
-    assert resolve_spec(path).mode == "tick"
-    overridden = resolve_spec(path, mode="message")
-    assert overridden.mode == "message" and overridden.channels == load_spec(path).channels
-    assert resolve_spec(path, tick_ms=10).tick_ns == 10_000_000
-    assert resolve_spec(None, ["/t:x:action"]).channels[0].role == "action"
-    with pytest.raises(SpecError, match="not both"):
-        resolve_spec(path, ["/t:x:action"])
-
-
 def test_every_message_is_an_event_unless_the_spec_asks_for_change():
     spec = Spec.from_dict({"channel": [{"topic": "/c", "field": "data", "role": "action"},
                                        {"topic": "/s", "field": "v", "role": "observation",

@@ -664,34 +664,6 @@ def spec_from_options(channels: Iterable[str], mode: str = DEFAULT_MODE,
     return _build_spec(data, "--channel options")
 
 
-def resolve_spec(spec_file: str | Path | None = None, channels: Iterable[str] = (),
-                 mode: str | None = None, tick_ms: float | None = None) -> Spec | None:
-    """The spec a command was given: ``--spec FILE`` or ``--channel`` shorthands, not both.
-
-    ``mode`` and ``tick_ms``, when given, override the file's. Returns ``None`` when
-    neither a file nor shorthands were given (see :func:`slearn.io.serialize.default_spec`).
-
-    Raises:
-        SpecError: both a file and shorthands, or an invalid spec.
-    """
-    channels = list(channels)
-    if spec_file is not None and channels:
-        raise SpecError("give either --spec FILE or --channel options, not both")
-    if channels:
-        return spec_from_options(channels, mode or DEFAULT_MODE, tick_ms)
-    if spec_file is None:
-        return None
-    spec = load_spec(spec_file)
-    if mode is None and tick_ms is None:
-        return spec
-    data = spec.to_dict()
-    data.update({"mode": mode} if mode else {})
-    if tick_ms is not None:
-        data.pop("tick_ns", None)
-        data["tick_ms"] = tick_ms
-    return _build_spec(data, str(spec_file))
-
-
 # --- built-in specs -----------------------------------------------------------------------
 
 POINTER_COMMAND = "/pointer/command"
