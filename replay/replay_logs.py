@@ -19,7 +19,7 @@ from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, TruncatedLogWarning
 from slearn.io.bags import is_log_path
 from slearn.io.mcap_read import ReadReport
-from slearn.io.slicing import TimeSlice, slice_from_dict
+from slearn.io.slicing import TimeSlice, overlap, slice_from_dict
 from slearn.io.spec import Spec
 from slearn.replay.baselines import Baselines
 from slearn.replay.evaluation import FIT_PREQUENTIAL, FIT_TRAINING, Checkpoint, Evaluation, evaluate
@@ -106,8 +106,8 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
                           window=window, baselines=baselines, baseline_fit=fit,
                           keep_outcomes=keep_outcomes, on_episode=_progress_line if progress else None)
-    result.warnings[:0] = setup.spec.warnings() + list(dict.fromkeys(
-        str(w.message) for w in caught if issubclass(w.category, DataWarning)))
+    result.warnings[:0] = setup.spec.warnings() + _learned_here(logs, setup.facts["provenance"], time_slice) \
+        + list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DataWarning)))
     result.setup = {**setup.facts, "logs": logs, "spec": setup.spec.to_dict()}
     if time_slice is not None:
         result.setup["slice"] = time_slice.to_dict()
@@ -193,6 +193,29 @@ def _unchanged(entry: Any, library_dir: str) -> str | None:
                 log_record(path)["sha256"] == entry.get("sha256"):
             return path
     return None
+
+
+def _learned_here(logs: list[str], provenance: Any, replayed: TimeSlice | None) -> list[str]:
+    """A warning for each held-out log the library learned (the same bytes, by its
+    provenance's sha256) where the time replayed may overlap the time learned: its accuracy
+    is not held-out."""
+    from slearn.io.bags import log_record
+
+    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
+    learned: dict[str, list[TimeSlice | None]] = {}
+    for entry in inputs if isinstance(inputs, list) else []:
+        if isinstance(entry, dict) and isinstance(entry.get("sha256"), str):
+            learned.setdefault(entry["sha256"], []).append(slice_from_dict(entry.get("slice")))
+    out = []
+    for path in logs if learned else []:
+        shared = [overlap(part, replayed) for part in learned.get(log_record(path)["sha256"], [])]
+        if any(shared) or None in shared:
+            how = "overlaps the time it learned: its accuracy is" if any(shared) else \
+                "may overlap the time it learned: its accuracy may be"
+            out.append(f"{path}: the library learned this log (same bytes), and the time replayed "
+                       f"{how} no held-out figure; replay other logs, or learn with --split and "
+                       f"replay with the same --split")
+    return out
 
 
 def _training_slices(provenance: dict, training: list[str]) -> dict[str, TimeSlice]:

@@ -152,3 +152,41 @@ def test_a_log_with_nothing_salvaged_has_no_accuracy_and_misses_any_threshold(fi
     gated = run(files["library"], stub, "--fail-under", "1", "--quiet")
     assert gated.exit_code == EXIT_BELOW_THRESHOLD
     assert "no observation event to predict" in gated.stderr
+
+
+def test_a_slice_overlap_is_known_when_the_bounds_decide_it():
+    from slearn.io.slicing import HELDOUT, overlap, time_slice
+
+    train, held = time_slice(split=0.7), time_slice(split=0.7, part=HELDOUT)
+    assert overlap(train, held) is False and overlap(held, train) is False
+    assert overlap(None, held) is True and overlap(train, None) is True and overlap(None, None) is True
+    assert overlap(time_slice(split=0.8), held) is True  # learned 80 %, replays the last 30 %
+    assert overlap(train, time_slice(split=0.8, part=HELDOUT)) is False
+    assert overlap(time_slice(end="60"), time_slice(start="60")) is False
+    assert overlap(time_slice(end="61"), time_slice(start="60", end="90")) is True
+    assert overlap(time_slice(start="100"), time_slice(end="50")) is False
+    # these depend on the log's own time range
+    assert overlap(time_slice(end="60"), time_slice(start="2024-01-01T00:00:00Z")) is None
+    assert overlap(time_slice(end="60", split=0.5), held) is None
+
+
+def test_replaying_what_the_library_learned_is_warned_about(files, tmp_path):
+    """A held-out log with the bytes of a training log (provenance sha256) whose replayed
+    time overlaps the learned time is no held-out figure: a warning, in JSON too."""
+    learned = tmp_path / "lib.parquet"
+    assert CliRunner().invoke(main, ["learn", str(files["train"]), "-o", str(learned), "-q"]).exit_code == 0
+    copy = tmp_path / "same-bytes.mcap"
+    copy.write_bytes(files["train"].read_bytes())
+    result = run(learned, files["test"], copy, "--json", "-q")
+    assert result.exit_code == 0, result.output
+    [warning] = [w for w in json.loads(result.stdout)["warnings"] if "learned this log" in w]
+    assert warning.startswith(f"{copy}: the library learned this log (same bytes)")
+    assert "overlaps the time it learned: its accuracy is no held-out figure" in warning
+    assert f"slearn: warning: {copy}: the library learned this log" in result.stderr
+    assert str(files["test"]) not in result.stderr
+    split = tmp_path / "split.parquet"
+    assert CliRunner().invoke(main, ["learn", str(files["train"]), "-o", str(split), "--split", "0.7",
+                                     "-q"]).exit_code == 0
+    assert "learned this log" not in run(split, files["train"], "--split", "0.7", "-q").stderr
+    assert "overlaps the time it learned" in run(split, files["train"], "-q").stderr
+    assert "may overlap the time it learned" in run(split, files["train"], "--start", "1", "-q").stderr

@@ -139,3 +139,29 @@ def _key(bound: TimeBound) -> float:
     if bound.seconds is not None:
         return bound.seconds
     return bound.unix_ns or 0
+
+
+def overlap(a: TimeSlice | None, b: TimeSlice | None) -> bool | None:
+    """Whether slices ``a`` and ``b`` of the same log share time: ``True``, ``False``, or
+    ``None`` when that depends on the log's own time range (different bounds and a split,
+    or a bound in seconds against one in Unix time). ``None`` is the whole log."""
+    if a is None or b is None:
+        return True
+    if (a.to_dict()["start"], a.to_dict()["end"]) == (b.to_dict()["start"], b.to_dict()["end"]):
+        (lo_a, hi_a), (lo_b, hi_b) = _shares(a), _shares(b)  # of the same bounded window
+        return max(lo_a, lo_b) < min(hi_a, hi_b)
+    if a.split is not None or b.split is not None:
+        return None
+    bounds = [x for x in (a.start, a.end, b.start, b.end) if x is not None]
+    if bounds and any(not _comparable(bounds[0], x) for x in bounds):
+        return None
+    low = max((_key(x) for x in (a.start, b.start) if x is not None), default=-math.inf)
+    high = min((_key(x) for x in (a.end, b.end) if x is not None), default=math.inf)
+    return low < high
+
+
+def _shares(s: TimeSlice) -> tuple[float, float]:
+    """``[low, high)`` of a slice as shares of its bounded window."""
+    if s.split is None:
+        return 0.0, 1.0
+    return (0.0, s.split) if s.part == TRAIN else (s.split, 1.0)
