@@ -188,10 +188,10 @@ def _unchanged(entry: Any, library_dir: str) -> str | None:
     if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
         return None
     for path in dict.fromkeys([entry["path"], os.path.join(library_dir, entry["path"])]):
-        if (os.path.isfile(path) or is_log_path(path)) and \
-                log_record(path)["size_bytes"] == entry.get("size_bytes") and \
-                log_record(path)["sha256"] == entry.get("sha256"):
-            return path
+        if os.path.isfile(path) or is_log_path(path):
+            record = log_record(path)  # reads the whole log: once
+            if (record["size_bytes"], record["sha256"]) == (entry.get("size_bytes"), entry.get("sha256")):
+                return path
     return None
 
 
