@@ -161,6 +161,7 @@ def test_a_slice_overlap_is_known_when_the_bounds_decide_it():
     assert overlap(train, held) is False and overlap(held, train) is False
     assert overlap(None, held) is True and overlap(train, None) is True and overlap(None, None) is True
     assert overlap(time_slice(split=0.8), held) is True  # learned 80 %, replays the last 30 %
+    assert overlap(time_slice("60.0", split=0.5), time_slice("60", split=0.5, part=HELDOUT)) is False
     assert overlap(train, time_slice(split=0.8, part=HELDOUT)) is False
     assert overlap(time_slice(end="60"), time_slice(start="60")) is False
     assert overlap(time_slice(end="61"), time_slice(start="60", end="90")) is True

@@ -147,7 +147,7 @@ def overlap(a: TimeSlice | None, b: TimeSlice | None) -> bool | None:
     or a bound in seconds against one in Unix time). ``None`` is the whole log."""
     if a is None or b is None:
         return True
-    if (a.to_dict()["start"], a.to_dict()["end"]) == (b.to_dict()["start"], b.to_dict()["end"]):
+    if _bounds(a) == _bounds(b):
         (lo_a, hi_a), (lo_b, hi_b) = _shares(a), _shares(b)  # of the same bounded window
         return max(lo_a, lo_b) < min(hi_a, hi_b)
     if a.split is not None or b.split is not None:
@@ -158,6 +158,10 @@ def overlap(a: TimeSlice | None, b: TimeSlice | None) -> bool | None:
     low = max((_key(x) for x in (a.start, b.start) if x is not None), default=-math.inf)
     high = min((_key(x) for x in (a.end, b.end) if x is not None), default=math.inf)
     return low < high
+
+
+def _bounds(s: TimeSlice) -> tuple:
+    return tuple(None if b is None else (b.seconds, b.unix_ns) for b in (s.start, s.end))
 
 
 def _shares(s: TimeSlice) -> tuple[float, float]:
