@@ -317,6 +317,8 @@ class PatternLibrary:
         counts, seen = np.asarray(arrays["count"], np.int64), np.asarray(arrays["last_seen"], np.int64)
         fresh = np.asarray(arrays["fresh"], np.int64)
         n = len(offsets) - 1
+        if int(self.tree.size[1]) == 0:  # a library rebuilt: every pattern is an entry, room at once
+            self.tree = context_tree.ensure_room(self.tree, 64, n + 64)
         # In pieces, each given room for a new node per token at most: the tree grows with
         # the nodes it really holds (shared prefixes), not with the patterns' total length.
         for lo in range(0, n, _IMPORT_PIECE):
