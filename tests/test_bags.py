@@ -43,7 +43,9 @@ def write_rosbag2(folder: Path, messages, storage: str) -> Path:
     types = {"/cmd": "std_msgs/msg/Int8", "/pos": "std_msgs/msg/Int32"}
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(folder, version=9, storage_plugin=plugin) as writer:
-        connections = {t: writer.add_connection(t, msgtype, typestore=store) for t, msgtype in types.items()}
+        # channels numbered in the order the messages first show their topics, as a recorder does
+        connections = {t: writer.add_connection(t, types[t], typestore=store)
+                       for t in dict.fromkeys(topic for topic, _, _ in messages)}
         for topic, time_ns, value in messages:
             message = store.types[types[topic]](data=value)
             writer.write(connections[topic], time_ns, store.serialize_cdr(message, types[topic]))
@@ -65,9 +67,10 @@ def write_ros1_bag(path: Path, messages) -> Path:
     return path
 
 
-def split_folder(tmp_path: Path, messages) -> Path:
-    """A rosbag2 MCAP bag split into two files, as `ros2 bag record --max-bag-size` leaves it."""
-    half = len(messages) // 2
+def split_folder(tmp_path: Path, messages, half: int | None = None) -> Path:
+    """A rosbag2 MCAP bag split into two files, as `ros2 bag record --max-bag-size` leaves it
+    (the second file starts at message ``half``, by default the middle one)."""
+    half = len(messages) // 2 if half is None else half
     parts = [write_rosbag2(tmp_path / f"part{i}", chunk, "mcap")
              for i, chunk in enumerate((messages[:half], messages[half:]))]
     folder = tmp_path / "split"
@@ -103,6 +106,25 @@ def test_a_split_rosbag2_folder_is_one_episode(tmp_path):
         [(name, record)] = [(n, r) for n, r in log.iter_metadata() if n == "rosbag2.metadata_yaml"]
         assert "split_1.mcap" in record["metadata.yaml"]
     assert log_record(folder)["size_bytes"] == sum(f.stat().st_size for f in folder.iterdir())
+
+
+def test_a_split_bag_whose_files_number_channels_differently_keeps_each_message_s_topic(tmp_path):
+    """Each file of a split bag numbers its channels in the order it first saw them (rosbag2's
+    own test bag `wbag` does): the second file here starts with a command, so /cmd is
+    channel 1 there and /pos channel 1 in the first. Messages must keep their own topic."""
+    from slearn.io.mcap_read import McapLog
+
+    messages = pointer_messages(300)
+    assert messages[301][0] == "/cmd" and messages[0][0] == "/pos"
+    folder = split_folder(tmp_path, messages, half=301)
+    numbering = [{c.topic: c.id for c in McapLog(folder / f"split_{i}.mcap").channels.values()}
+                 for i in range(2)]
+    assert numbering[0] != numbering[1]
+    whole = write_rosbag2(tmp_path / "whole", messages, "mcap")
+    assert steps_of([folder])[0][1] == steps_of([whole])[0][1]
+    with open_log(folder) as log:
+        got = [(m.channel.topic, m.log_time_ns) for m in log.iter_messages(["/pos"])]
+    assert got == [(t, time) for t, time, _ in messages if t == "/pos"]
 
 
 @pytest.mark.parametrize("kind", ["db3", "db3 folder", "ros1"])

@@ -212,8 +212,7 @@ class Rosbag2McapFolder(_LogBase):
                     on_progress(sum(done), total)
             return show
 
-        streams = [((m.log_time_ns, i, m) for m in log.iter_messages(topics, progress(i)))
-                   for i, log in enumerate(self._logs)]
+        streams = [_stamped(i, log.iter_messages(topics, progress(i))) for i, log in enumerate(self._logs)]
         for _, i, message in heapq.merge(*streams, key=lambda item: item[:2]):
             self.report.n_messages += 1  # offsets are the files': named by number instead
             yield message._replace(channel=self._unified(i, message.channel), offset=UNKNOWN_OFFSET)
@@ -238,6 +237,15 @@ class Rosbag2McapFolder(_LogBase):
         """Every file's attachments."""
         for log in self._logs:
             yield from log.iter_attachments()
+
+
+def _stamped(i: int, messages: Iterator[RawMessage]) -> Iterator[tuple[int, int, RawMessage]]:
+    """``(log time, file index, message)`` of file ``i``'s messages. (A generator expression
+    in a comprehension would read ``i`` when consumed, after the comprehension ended: every
+    file's messages would carry the last file's index, and their channel ids would be read
+    in the last file's numbering.)"""
+    for m in messages:
+        yield m.log_time_ns, i, m
 
 
 class RosbagsLog(_LogBase):
