@@ -301,3 +301,21 @@ def test_merge_refuses_libraries_with_other_parameters(logs, tmp_path):
 def test_learn_files_is_the_library_api(logs, tmp_path):
     result = learn_files([logs["reversal"]], tmp_path / "r.parquet")
     assert result.n_episodes == 1 and result.n_patterns == len(load_library(tmp_path / "r.parquet").library)
+
+
+def test_a_log_learned_twice_is_warned_about(logs, tmp_path):
+    """The same bytes learned twice into one library (a copy, the same path, or again with
+    --resume) count double: a warning naming both; disjoint slices of one log are fine."""
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(logs["simple"].read_bytes())
+    twice = learn(logs["simple"], copy, "-o", tmp_path / "a.parquet")
+    assert twice.exit_code == 0, twice.output
+    assert f"slearn: warning: {copy}: has the bytes of {logs['simple']}, learned before into this library" \
+        in twice.stderr and "counts double" in twice.stderr
+    once = learn(logs["simple"], logs["delay"], "-o", tmp_path / "b.parquet")
+    assert "learned before" not in once.stderr
+    again = learn(logs["simple"], "--resume", tmp_path / "b.parquet", "-o", tmp_path / "c.parquet")
+    assert f"{logs['simple']}: was learned before into this library" in again.stderr
+    first = learn(logs["simple"], "--end", "100", "-o", tmp_path / "d.parquet")
+    rest = learn(logs["simple"], "--start", "100", "--resume", tmp_path / "d.parquet", "-o", tmp_path / "e.parquet")
+    assert first.exit_code == rest.exit_code == 0 and "learned before" not in rest.stderr

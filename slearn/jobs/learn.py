@@ -38,7 +38,7 @@ from slearn.io.library_header import MAX_TIME_UNIX
 from slearn.io.mcap_read import ReadReport
 from slearn.io.onepass import can_fit_in_one_pass, fit_and_read
 from slearn.io.serialize import fit_spec, read_episodes, read_pieces
-from slearn.io.slicing import TimeSlice
+from slearn.io.slicing import TimeSlice, overlap, slice_from_dict
 from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
 
 SCORING_RULES = ("adaptive", "literal")
@@ -251,9 +251,11 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
     if not result.n_steps and result.truncated:
         raise InputError(f"nothing could be salvaged, so nothing was written: "
                          f"{result.truncated[0].describe()}")
+    provenance = build_provenance(paths, job.provenance, window)
+    for message in repeated_inputs(provenance["inputs"]):
+        warnings.warn(DataWarning(message), stacklevel=2)
     saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
-                         provenance=build_provenance(paths, job.provenance, window),
-                         overwrite=overwrite)
+                         provenance=provenance, overwrite=overwrite)
     result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
     result.clock, result.forgotten = job.library.clock, job.library.forgotten
     result.n_symbols, result.seconds = len(job.vocabulary), time.perf_counter() - start
@@ -324,6 +326,25 @@ def build_provenance(paths: Sequence[str | os.PathLike], previous: dict | None =
     return {"slearn_version": __version__, "inputs": inputs, "time_unix": stamp,
             "time": datetime.fromtimestamp(stamp, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "time_source": source}
+
+
+def repeated_inputs(inputs: list[dict]) -> list[str]:
+    """A warning for each input with the bytes of an earlier one (the same sha256; with
+    ``--resume``, the library's own inputs come first) whose learned time overlaps it, or
+    may: that time was learned twice, and its patterns count double."""
+    out: list[str] = []
+    seen: dict[str | None, list[tuple[str | None, TimeSlice | None]]] = {}
+    for entry in inputs:
+        earlier = seen.setdefault(entry.get("sha256"), [])
+        path, here = entry.get("path"), slice_from_dict(entry.get("slice"))
+        for other, window in earlier:
+            if overlap(window, here) is not False:
+                what = "was learned before" if other == path else f"has the bytes of {other}, learned before"
+                out.append(f"{path}: {what} into this library: that time was learned twice and "
+                           f"counts double (give each log once, or disjoint --start/--end)")
+                break
+        earlier.append((path, here))
+    return out
 
 
 def source_date_epoch() -> int | None:

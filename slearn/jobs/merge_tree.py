@@ -54,7 +54,15 @@ from slearn.jobs.cluster import (
     loaded_bytes,
     ray_session,
 )
-from slearn.jobs.learn import LearnResult, _new_job, _resumed_job, build_provenance, checked_inputs, source_date_epoch
+from slearn.jobs.learn import (
+    LearnResult,
+    _new_job,
+    _resumed_job,
+    build_provenance,
+    checked_inputs,
+    repeated_inputs,
+    source_date_epoch,
+)
 from slearn.jobs.merge import merge_libraries
 from slearn.jobs.pages import small_pages
 
@@ -99,10 +107,11 @@ def learn_on_ray(paths: Sequence[str | os.PathLike], output: str | os.PathLike, 
         raise InputError(f"nothing could be salvaged, so nothing was written: "
                          f"{result.truncated[0].describe()}")
     library, vocabulary = _final(merged, job)
+    provenance = build_provenance(paths, job.provenance, window, [s["record"] for s in stats])
+    for message in repeated_inputs(provenance["inputs"]):
+        warnings.warn(DataWarning(message), stacklevel=2)
     saved = save_library(output, library, vocabulary, spec=job.spec, params=job.params,
-                         provenance=build_provenance(paths, job.provenance, window,
-                                                     [s["record"] for s in stats]),
-                         overwrite=overwrite)
+                         provenance=provenance, overwrite=overwrite)
     result.n_patterns, result.size_bytes = saved.n_patterns, saved.size_bytes
     result.clock, result.forgotten = library.clock, library.forgotten
     result.n_symbols, result.seconds = len(vocabulary), time.perf_counter() - start
