@@ -19,7 +19,7 @@ from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, TruncatedLogWarning
 from slearn.io.bags import is_log_path
 from slearn.io.mcap_read import ReadReport
-from slearn.io.slicing import TimeSlice, overlap, slice_from_dict
+from slearn.io.slicing import TimeSlice, shares_time, slice_from_dict
 from slearn.io.spec import Spec
 from slearn.replay.baselines import Baselines
 from slearn.replay.evaluation import FIT_PREQUENTIAL, FIT_TRAINING, Checkpoint, Evaluation, evaluate
@@ -197,8 +197,8 @@ def _unchanged(entry: Any, library_dir: str) -> str | None:
 
 def _learned_here(logs: list[str], provenance: Any, replayed: TimeSlice | None) -> list[str]:
     """A warning for each held-out log the library learned (the same bytes, by its
-    provenance's sha256) where the time replayed may overlap the time learned: its accuracy
-    is not held-out."""
+    provenance's sha256) where the time replayed overlaps the time learned, or may: its
+    accuracy is not held-out."""
     from slearn.io.bags import log_files, log_record
 
     inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
@@ -212,9 +212,9 @@ def _learned_here(logs: list[str], provenance: Any, replayed: TimeSlice | None) 
     for path in logs if learned else []:
         if sum(f.stat().st_size for f in log_files(path)) not in sizes:
             continue  # other bytes for sure: no need to read the log to hash it
-        shared = [overlap(part, replayed) for part in learned.get(log_record(path)["sha256"], [])]
-        if any(shared) or None in shared:
-            how = "overlaps the time it learned: its accuracy is" if any(shared) else \
+        shared = shares_time(learned.get(log_record(path)["sha256"], []), replayed)
+        if shared is not False:
+            how = "overlaps the time it learned: its accuracy is" if shared else \
                 "may overlap the time it learned: its accuracy may be"
             out.append(f"{path}: the library learned this log (same bytes), and the time replayed "
                        f"{how} no held-out figure; replay other logs, or learn with --split and "

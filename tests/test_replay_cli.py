@@ -155,7 +155,7 @@ def test_a_log_with_nothing_salvaged_has_no_accuracy_and_misses_any_threshold(fi
 
 
 def test_a_slice_overlap_is_known_when_the_bounds_decide_it():
-    from slearn.io.slicing import HELDOUT, overlap, time_slice
+    from slearn.io.slicing import HELDOUT, overlap, shares_time, time_slice
 
     train, held = time_slice(split=0.7), time_slice(split=0.7, part=HELDOUT)
     assert overlap(train, held) is False and overlap(held, train) is False
@@ -169,6 +169,9 @@ def test_a_slice_overlap_is_known_when_the_bounds_decide_it():
     # these depend on the log's own time range
     assert overlap(time_slice(end="60"), time_slice(start="2024-01-01T00:00:00Z")) is None
     assert overlap(time_slice(end="60", split=0.5), held) is None
+    assert shares_time([], held) is False and shares_time([train], held) is False
+    assert shares_time([time_slice(end="60", split=0.5), None], held) is True
+    assert shares_time([train, time_slice(end="60", split=0.5)], held) is None
 
 
 def test_replaying_what_the_library_learned_is_warned_about(files, tmp_path):

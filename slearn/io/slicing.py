@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
+from typing import Iterable
 
 from slearn.errors import InputError
 
@@ -158,6 +159,13 @@ def overlap(a: TimeSlice | None, b: TimeSlice | None) -> bool | None:
     low = max((_key(x) for x in (a.start, b.start) if x is not None), default=-math.inf)
     high = min((_key(x) for x in (a.end, b.end) if x is not None), default=math.inf)
     return low < high
+
+
+def shares_time(learned: Iterable[TimeSlice | None], window: TimeSlice | None) -> bool | None:
+    """Whether ``window`` shares time with any of the ``learned`` slices of the same log:
+    ``True``, ``None`` (it may: see :func:`overlap`) or ``False``."""
+    verdicts = [overlap(part, window) for part in learned]
+    return True if any(verdicts) else None if None in verdicts else False
 
 
 def _bounds(s: TimeSlice) -> tuple:

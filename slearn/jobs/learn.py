@@ -38,7 +38,7 @@ from slearn.io.library_header import MAX_TIME_UNIX
 from slearn.io.mcap_read import ReadReport
 from slearn.io.onepass import can_fit_in_one_pass, fit_and_read
 from slearn.io.serialize import fit_spec, read_episodes, read_pieces
-from slearn.io.slicing import TimeSlice, overlap, slice_from_dict
+from slearn.io.slicing import TimeSlice, shares_time, slice_from_dict
 from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
 
 SCORING_RULES = ("adaptive", "literal")
@@ -333,17 +333,15 @@ def repeated_inputs(inputs: list[dict]) -> list[str]:
     ``--resume``, the library's own inputs come first) whose learned time overlaps it, or
     may: that time was learned twice, and its patterns count double."""
     out: list[str] = []
-    seen: dict[str | None, list[tuple[str | None, TimeSlice | None]]] = {}
+    earlier: dict[str | None, tuple[str | None, list[TimeSlice | None]]] = {}
     for entry in inputs:
-        earlier = seen.setdefault(entry.get("sha256"), [])
         path, here = entry.get("path"), slice_from_dict(entry.get("slice"))
-        for other, window in earlier:
-            if overlap(window, here) is not False:
-                what = "was learned before" if other == path else f"has the bytes of {other}, learned before"
-                out.append(f"{path}: {what} into this library: that time was learned twice and "
-                           f"counts double (give each log once, or disjoint --start/--end)")
-                break
-        earlier.append((path, here))
+        first, learned = earlier.setdefault(entry.get("sha256"), (path, []))
+        if shares_time(learned, here) is not False:
+            what = "was learned before" if first == path else f"has the bytes of {first}, learned before"
+            out.append(f"{path}: {what} into this library: that time was learned twice and "
+                       f"counts double (give each log once, or disjoint --start/--end)")
+        learned.append(here)
     return out
 
 
