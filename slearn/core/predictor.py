@@ -11,7 +11,7 @@ buffer the call's address table points to; the history only moves the view strea
 the last step is predicted as the step loop of :mod:`slearn.core.online` predicts it.
 :meth:`Predictor.predict_batch` answers many queries of one episode in one call, as arrays.
 Since nothing changes while the library does not learn, answers are remembered: per query
-(a stream's queries repeat), per view's context and per chosen context's ranking
+(by its codes: a stream's queries repeat), per view's context and per chosen context's ranking
 (:class:`~slearn.core.queries.Memo`); learning empties them.
 """
 
@@ -117,16 +117,23 @@ class Predictor:
         self._known: tuple[int, ...] = ()
         self._single: Buffers  # one query's buffers (made by _refresh)
         self._flat_bytes = memoryview(b"")  # their flat codes' bytes, written by _run_flat
+        self._capacity = 0                  # and how many codes they hold
         self._single_state: tuple = (None, None)  # the tree and mixer its table points to
         self._single_table = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
         self._symbols_of: dict[int, tuple[int, ...]] = {}
         self._step_codes: dict = {}  # step -> its flat codes' bytes, see _step_code
-        self._answers: dict = {}     # (history, actions) -> Prediction, for the library's clock
+        self._answers: dict = {}     # a query's flat codes -> Prediction, for the library's clock
         self._made: dict = {}        # reports -> Prediction, see _single_prediction
         self._clock = -1
+        self._ticks = np.full(1, -1, np.int64).data  # the library's clock, read in place
+        self._n_tokens = np.zeros(1, np.int64).data  # the token table's count, the same
+        self._views = 1                          # the library's views (at least one)
+        self._answering = False                  # whether predict's compiled path applies
+        self._said = memoryview(b"")             # the single reports' bytes an answer depends on
         self._acted: set = set()     # symbols the cached steps use as actions,
-        self._observed: set = set()  # and as observations
+        self._observed: set = set()  # and as observations,
+        self._mixed_roles = False    # and whether one is both without a vocabulary (then check)
 
     def predict(self, history: list[Step], actions: tuple[int, ...] = ()) -> Prediction:
         """Predict the observations that follow ``actions`` after the steps in ``history``.
@@ -134,21 +141,18 @@ class Predictor:
         ``history`` is a list of ``(actions, observations)`` steps of symbols, oldest first.
         """
         library = self.library
-        if library.clock and library.view_names and getattr(library, "streams", None) is not None:
+        if self._ticks[0] != self._clock or library.tokens.arrays is not self._arrays \
+                or self._n_tokens[0] != self._known[0] or len(library.view_names) != self._known[1]:
             self._refresh()
-            actions = actions if type(actions) is tuple else tuple(actions)
-            key: tuple | None = (tuple(history), actions) if len(history) <= _KEY_STEPS else None
-            try:
-                said = self._answers.get(key) if key is not None else None
-            except TypeError:  # steps of lists: not a key
-                key, said = None, None
-            if said is not None:
-                return said
-            flat = self._cached_codes(history, actions)
+        if self._answering:
+            flat = self._cached_codes(history, actions if type(actions) is tuple else tuple(actions))
             if flat is not None:
-                said = self._single_prediction(self._run_flat(flat))
-                if key is not None:
-                    self._answers = _kept(self._answers, key, said, self._n_views())
+                said = self._answers.get(flat)
+                if said is None:
+                    self._run_flat(flat)
+                    said = self._single_answer()
+                    if len(history) <= _KEY_STEPS:
+                        self._answers = _kept(self._answers, flat, said, self._views)
                 return said
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
@@ -161,7 +165,8 @@ class Predictor:
         if getattr(self.library, "streams", None) is None:
             return self._literal(steps)
         self._refresh()
-        return self._single_prediction(self._run_flat(self._encode_steps(steps, unknown_views)))
+        self._run_flat(self._encode_steps(steps, unknown_views))
+        return self._single_answer()
 
     def predict_batch(self, episode: Episode, starts, ends,
                       unknown_views: np.ndarray | None = None) -> BatchPrediction:
@@ -200,10 +205,11 @@ class Predictor:
         one compiled call of three scalar arguments (the codes are copied into the single
         query's buffer, which its kept address table points to)."""
         size = len(flat) // 4
-        if size > len(self._single.query.flat):
+        if size > self._capacity:
             self._use_single(self._single._replace(query=single_query(self._single.query.run, size)))
         library = self.library
-        if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
+        state = self._single_state
+        if library.tree is not state[0] or library.mixer is not state[1]:
             self._single_table = state_table((library.tree, library.mixer), self._single)
             self._single_state = (library.tree, library.mixer)
         self._flat_bytes[:len(flat)] = flat
@@ -214,6 +220,7 @@ class Predictor:
         """Take ``buffers`` for single queries (their address table is made on first use)."""
         self._single, self._single_state = buffers, (None, None)
         self._flat_bytes = buffers.query.flat.data.cast("B")
+        self._capacity = len(buffers.query.flat)
 
     def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, buffers: Buffers) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
@@ -226,15 +233,29 @@ class Predictor:
         return buffers.out
 
     def _single_prediction(self, out: Reports) -> Prediction:
-        """``out``'s reports, one per view (the single-query buffers), as a
-        :class:`Prediction`: the one made before for the same reports, if any (queries
-        that differ often get the same answer, and an answer is many small objects)."""
+        """``out``'s reports, one per view, as a :class:`Prediction` (the literal rule's
+        path; compiled queries use :meth:`_single_answer`): the one made before for the
+        same reports, if any (queries that differ often get the same answer, and an answer
+        is many small objects)."""
         said = (out.predicted, out.score, out.length, out.kind, out.top, out.top_p)
         key = b"".join([a.tobytes() for a in said])
         made = self._made.get(key)
         if made is None:
             made = self._prediction_of(*(a.tolist() for a in said))
             self._made = _kept(self._made, key, made, self._n_views())
+        return made
+
+    def _single_answer(self) -> Prediction:
+        """The single query's reports as a :class:`Prediction`, the one made before for the
+        same reports if any, found by the bytes of the one buffer they share
+        (``packed_reports``: one copy instead of six)."""
+        key = bytes(self._said)
+        made = self._made.get(key)
+        if made is None:
+            out = self._single.out
+            made = self._prediction_of(out.predicted.tolist(), out.score.tolist(), out.length.tolist(),
+                                       out.kind.tolist(), out.top.tolist(), out.top_p.tolist())
+            self._made = _kept(self._made, key, made, self._views)
         return made
 
     def _prediction_of(self, token: list, score: list, length: list, kind: list, top: list,
@@ -291,21 +312,28 @@ class Predictor:
 
     def _refresh(self) -> None:
         """Forget the answers when the library learned since, and the dictionaries when it
-        learned tokens or views."""
+        learned tokens or views (:meth:`predict` checks the same things inline first)."""
         library = self.library
-        clock = library.clock
+        compiled = getattr(library, "streams", None) is not None and bool(library.view_names)
         arrays, known = library.tokens.arrays, (len(library.tokens), len(library.view_names))
         if arrays is not self._arrays or known != self._known:
-            library.prepare()
             self._arrays, self._known, self._token_of, self._symbols_of = arrays, known, {}, {}
+            self._n_tokens, self._views = arrays.size.data, max(known[1], 1)
             self._made = {}
-            self._step_codes, self._acted, self._observed = {}, set(), set()
-            buffers = new_buffers(library, 1, self.top_k, SINGLE_MEMO_SLOTS)
-            self._use_single(buffers._replace(query=single_query(buffers.query.run, 64)))
+            self._step_codes, self._acted, self._observed, self._mixed_roles = {}, set(), set(), False
             self._clock = -1
-        if clock != self._clock:
-            self._clock, self._answers = clock, {}
-            forget(self._single.memo)
+            if compiled:
+                library.prepare()
+                buffers = new_buffers(library, 1, self.top_k, SINGLE_MEMO_SLOTS)
+                out, self._said = packed_reports(buffers.out)
+                self._use_single(buffers._replace(out=out, query=single_query(buffers.query.run, 64)))
+        if library.clock != self._clock:
+            self._clock, self._answers = library.clock, {}
+            if compiled:
+                forget(self._single.memo)
+        ticks = getattr(library, "clock_array", None)  # (a literal library has none)
+        self._ticks = (ticks if ticks is not None else np.full(1, self._clock, np.int64)).data
+        self._answering = compiled and library.clock > 0
 
     def _encode_steps(self, steps: list[Step], unknown_views: np.ndarray | None) -> bytes:
         """``library.encode(Episode.from_steps(steps), intern=False)`` with the last step's
@@ -341,19 +369,23 @@ class Predictor:
         (otherwise no query of them can)."""
         cache = self._step_codes
         last = (actions, ())
-        parts = []
-        for step in (*history, last):
-            try:
-                code = cache.get(step)
-            except TypeError:  # lists: not a key
-                return None
-            if code is None:
-                if type(step) is not tuple or len(step) != 2 or type(step[0]) is not tuple \
-                        or type(step[1]) is not tuple:
+        try:
+            parts = [cache[step] for step in history]
+            parts.append(cache[last])
+        except (KeyError, TypeError):  # a step not seen yet, or lists (not keys)
+            parts = []
+            for step in (*history, last):
+                try:
+                    code = cache.get(step)
+                except TypeError:
                     return None
-                code = self._step_code(step)
-            parts.append(code)
-        if self.library.vocabulary is None and not self._acted.isdisjoint(self._observed):
+                if code is None:
+                    if type(step) is not tuple or len(step) != 2 or type(step[0]) is not tuple \
+                            or type(step[1]) is not tuple:
+                        return None
+                    code = self._step_code(step)
+                parts.append(code)
+        if self._mixed_roles:
             _check_joint([*history, last])
         return b"".join(parts)
 
@@ -363,10 +395,11 @@ class Predictor:
         acts, obs = step
         code = self._checked_codes([step], None)
         if len(self._step_codes) >= _STEP_CODES:
-            self._step_codes, self._acted, self._observed = {}, set(), set()
+            self._step_codes, self._acted, self._observed, self._mixed_roles = {}, set(), set(), False
         self._step_codes[step] = code
         self._acted.update(acts)
         self._observed.update(obs)
+        self._mixed_roles = self.library.vocabulary is None and not self._acted.isdisjoint(self._observed)
         return code
 
     def _codes_of(self, steps: list[Step], view_of) -> bytes:
@@ -453,6 +486,21 @@ def _by_view(obs: tuple[int, ...], view_of) -> list[tuple[int, tuple[int, ...]]]
     return [(v, tuple(groups[v])) for v in sorted(groups)]
 
 
+def packed_reports(reports: Reports) -> tuple[Reports, memoryview]:
+    """``reports`` copied into one buffer, each field 8-byte aligned, and the bytes of its
+    fields up to ``top_p`` (everything a :class:`Prediction` is made of): the key a
+    predictor remembers an answer by, read in one copy."""
+    sizes = [-(-a.nbytes // 8) * 8 for a in reports]
+    buffer = np.zeros(sum(sizes), np.uint8)
+    fields, at = [], 0
+    for a, size in zip(reports, sizes):
+        field = buffer[at:at + a.nbytes].view(a.dtype).reshape(a.shape)
+        field[...] = a
+        fields.append(field)
+        at += size
+    return Reports(*fields), buffer.data[:sum(sizes[:Reports._fields.index("top_p") + 1])]
+
+
 def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPrediction:
     shape = (queries, n_views)
     return BatchPrediction(out.predicted.reshape(shape), out.score.reshape(shape),
@@ -463,7 +511,7 @@ def _batch(out: Reports, queries: int, n_views: int, top_k: int) -> BatchPredict
 _STEP_CODES = 1 << 16    # steps a predictor remembers the codes of
 _ANSWER_CACHE = 1 << 14  # views' answers a predictor remembers, per query and per answer
 _KEY_STEPS = 64          # the longest history whose answer is remembered (memory: a query
-#                          remembered keeps its steps; a longer history is rarely asked again)
+#                          remembered keeps its codes; a longer history is rarely asked again)
 
 
 def _kept(cache: dict, key, value, n_views: int) -> dict:
