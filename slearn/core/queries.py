@@ -81,21 +81,33 @@ class Buffers(NamedTuple):
     query: Query
 
 
-MEMO_SLOTS = 1 << 14        # slots of a batch's memo at most (one per query and view up to it)
-SINGLE_MEMO_SLOTS = 1 << 10  # slots of the memo a predictor keeps for its single queries
+MEMO_BYTES = 1 << 18  # a memo's size at most: beside the tree's hot part, what a core's L2
+#   cache holds. Memos are probed at random, so one larger than the cache misses on every
+#   probe: 16,384 slots (2.8 MB at 12 tokens of context and top 3) answered batches
+#   1.1-1.4x slower than 1,024 slots (170 kB) on every pointer and arm stream measured,
+#   though they remembered more (bench_predict.py, issue 12).
+SINGLE_MEMO_SLOTS = 1 << 10  # slots the memo of a predictor's single queries wants
 _NO_I32, _NO_I64 = np.zeros(0, np.int32), np.zeros(0, np.int64)
 
 
+def memo_slots(wanted: int, max_context: int, top_k: int) -> int:
+    """The power of two at least ``wanted`` (at least one), as long as the memo's bytes stay
+    within ``MEMO_BYTES``; the largest power of two that does otherwise."""
+    slot = sum(a.nbytes for a in new_memo(1, max_context, top_k))
+    cap = 1 << max(0, (MEMO_BYTES // slot).bit_length() - 1)
+    return 1 << max(0, min(wanted, cap) - 1).bit_length()
+
+
 def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> Buffers:
-    """The buffers of ``queries`` queries, with a memo of ``slots`` (else one per query and
-    view up to ``MEMO_SLOTS``)."""
+    """The buffers of ``queries`` queries, with a memo of about ``slots`` (else one per
+    query and view), within ``MEMO_BYTES`` (``memo_slots``)."""
     n_views = len(library.view_names)
     n = queries * n_views
     run = np.array([library.has_actions, library.empty_action, library.empty_observation], np.int32)
-    if slots is None:
-        slots = 1 << max(0, min(n, MEMO_SLOTS) - 1).bit_length()
+    top_k = max(top_k, 1)
+    slots = memo_slots(n if slots is None else slots, library.max_context, top_k)
     return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
-                   new_memo(slots, library.max_context, max(top_k, 1)),
+                   new_memo(slots, library.max_context, top_k),
                    Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64))
 
 
