@@ -28,6 +28,7 @@ from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 from slearn.errors import ParameterError
 
 ITEM = "item"
+_RANKED_KEPT = 1 << 14  # rankings a model remembers by their prediction
 SCORINGS = ("adaptive", "literal")
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
@@ -52,6 +53,9 @@ class SequenceModel:
         self._params = (max_length, max_patterns)
         self.library: PatternLibrary | LiteralLibrary | None = None
         self._predictor: Predictor | None = None
+        self._steps_for: Vocabulary | None = None  # the vocabulary _item_steps was made from
+        self._item_steps: dict = {}   # item -> its step, see _known_steps
+        self._ranked_of: dict = {}    # id(prediction) -> (prediction, k, ranking), see _ranked_items
 
     # --- the sequence form --------------------------------------------------------------
     def learn(self, sequence: Iterable[Hashable]) -> None:
@@ -70,12 +74,11 @@ class SequenceModel:
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
         """Up to ``k`` next items, best first, each with the share of its context behind it."""
         tail = self._tail(history)
-        symbols = self._known_items(tail)
-        if symbols is None:  # an item never seen: the general path gives it a symbol of its own
-            prediction = self._query([({}, {ITEM: item}) for item in tail], {}, k)
-        else:  # the predictor's path for steps it may have seen (it remembers their codes)
-            prediction = self._named(self._predictor_for(k).predict([((), (s,)) for s in symbols], ()), k)
-        return [(value, p) for value, p in prediction.get(ITEM, [])]
+        steps = self._known_steps(tail)
+        if steps is None:  # an item never seen: the general path gives it a symbol of its own
+            return list(self._query([({}, {ITEM: item}) for item in tail], {}, k).get(ITEM, []))
+        # the predictor's path for steps it may have seen (it remembers their codes)
+        return self._ranked_items(self._predictor_for(k).predict(steps, ()), k)
 
     def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
         """:meth:`predict` for many histories, in one compiled call (the same answers)."""
@@ -216,15 +219,39 @@ class SequenceModel:
             out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
         return out[0], out[1]
 
-    def _known_items(self, items: list[Hashable]) -> list[int] | None:
-        """The items' symbols, or ``None`` when one was never seen (or nothing was learned)."""
+    def _known_steps(self, items: list[Hashable]) -> list | None:
+        """The items as the predictor's steps, ``((), (symbol,))`` each (the same tuples every
+        time), or ``None`` when one was never seen, is not hashable, or nothing was learned."""
         if self.library is None:
             return None
+        if self._steps_for is not self.vocabulary:
+            self._steps_for, self._item_steps = self.vocabulary, {}
+        step_of = self._item_steps
         try:
-            symbols = self.vocabulary.get_symbols(ITEM, items)
+            return [step_of[item] for item in items]
+        except KeyError:
+            pass
         except TypeError:  # not hashable: the general path says so
             return None
-        return None if None in symbols else symbols  # type: ignore[return-value]
+        for item in items:
+            if item not in step_of:
+                symbol = self.vocabulary.get_symbol(ITEM, item)
+                if symbol is None:
+                    return None
+                step_of[item] = ((), (symbol,))
+        return [step_of[item] for item in items]
+
+    def _ranked_items(self, prediction, k: int) -> list[tuple[Hashable, float]]:
+        """The item view's ranking of ``prediction`` as ``(item, share)`` pairs, the one made
+        before for the same prediction object if any (a predictor hands out the same object
+        for the same answer); a new list each call."""
+        made = self._ranked_of.get(id(prediction))
+        if made is None or made[0] is not prediction or made[1] != k:
+            made = (prediction, k, self._named(prediction, k).get(ITEM, []))
+            if len(self._ranked_of) >= _RANKED_KEPT:
+                self._ranked_of = {}
+            self._ranked_of[id(prediction)] = made  # (the entry keeps the object, so its id)
+        return list(made[2])
 
     def _tail(self, history: Sequence[Hashable]) -> list[Hashable]:
         items = list(history)

@@ -134,8 +134,17 @@ def test_rank_of_known_items_equals_the_general_path(scoring, monkeypatch):
     histories = [[rng.choice("abcd") for _ in range(rng.randint(0, 7))] for _ in range(150)]
     fast = {k: [model.rank(h, k) for h in histories] for k in (1, 3)}
     assert any(fast[3])
-    monkeypatch.setattr(SequenceModel, "_known_items", lambda self, items: None)
+    for ranked in fast[3]:
+        ranked.append(("mutated", 1.0))  # a caller's list: answers asked again are not changed
+    assert {k: [model.rank(h, k) for h in histories] for k in (1, 3)} == {1: fast[1], 3: [r[:-1] for r in fast[3]]}
+    fast[3] = [r[:-1] for r in fast[3]]
+    monkeypatch.setattr(SequenceModel, "_known_steps", lambda self, items: None)
     assert {k: [model.rank(h, k) for h in histories] for k in (1, 3)} == fast
+    monkeypatch.undo()
+    model.learn(list("dcba" * 40))  # the model learns: remembered rankings are not reused
+    again = [model.rank(h, 3) for h in histories]
+    monkeypatch.setattr(SequenceModel, "_known_steps", lambda self, items: None)
+    assert [model.rank(h, 3) for h in histories] == again != fast[3]
     monkeypatch.undo()
     with pytest.raises(ParameterError, match="not hashable"):
         model.predict(["a", ["b"]])
