@@ -20,7 +20,7 @@ from typing import Any, Hashable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
+from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary, check_parameters
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
@@ -47,6 +47,7 @@ class SequenceModel:
                  max_patterns: int | None = None) -> None:
         if scoring not in SCORINGS:
             raise ParameterError(f"scoring must be one of {', '.join(SCORINGS)}, not {scoring!r}")
+        check_parameters(max_length, max_patterns)
         self.vocabulary = Vocabulary()
         self.scoring = scoring
         self._form: str | None = None
@@ -62,7 +63,7 @@ class SequenceModel:
         """Learn one sequence of hashable items (one episode)."""
         self._use("sequence")
         self.vocabulary.add_channel(ITEM, OBSERVATION)
-        symbols = [self._symbol(ITEM, item, learn=True) for item in sequence]
+        symbols = [self._symbol(ITEM, item, learn=True) for item in _iterable(sequence, "a sequence of items")]
         if symbols:
             self._learn(Episode.from_steps([((), (s,)) for s in symbols]))
 
@@ -73,6 +74,7 @@ class SequenceModel:
 
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
         """Up to ``k`` next items, best first, each with the share of its context behind it."""
+        _check_k(k)
         tail = self._tail(history)
         steps = self._known_steps(tail)
         if steps is None:  # an item never seen: the general path gives it a symbol of its own
@@ -82,6 +84,7 @@ class SequenceModel:
 
     def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
         """:meth:`predict` for many histories, in one compiled call (the same answers)."""
+        histories = _iterable(histories, "histories")
         if self.library is None:
             return [None for _ in histories]
         # The episode _lookup_steps would make of ({}, {ITEM: item}) steps, each history
@@ -136,7 +139,7 @@ class SequenceModel:
     def learn_steps(self, steps: Iterable[Step]) -> None:
         """Learn one episode of ``(actions, observations)`` steps (mappings channel -> value)."""
         self._use("steps")
-        rows = [self._step_symbols(step, learn=True) for step in steps]
+        rows = [self._step_symbols(step, learn=True) for step in _iterable(steps, "steps")]
         if rows:
             self._learn(Episode.from_steps(rows))
 
@@ -149,7 +152,10 @@ class SequenceModel:
                   k: int = 3) -> dict[str, list[tuple[Hashable, float]]]:
         """Per observation channel, up to ``k`` next values with their shares, best first."""
         self._use("steps", learning=False)
-        return self._query(list(history), actions, k)
+        _check_k(k)
+        if not isinstance(actions, Mapping):
+            raise ParameterError(f"actions must be a mapping channel -> value, not {actions!r}")
+        return self._query(list(_iterable(history, "a history of steps")), actions, k)
 
     # --- files --------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
@@ -206,14 +212,8 @@ class SequenceModel:
         return -1 if known is None else known
 
     def _step_symbols(self, step: Step, learn: bool) -> tuple[tuple[int, ...], tuple[int, ...]]:
-        try:
-            actions, observations = step
-        except (TypeError, ValueError):
-            raise ParameterError(f"a step is (actions, observations), two mappings; got {step!r}") from None
         out = []
-        for role, mapping in ((ACTION, actions), (OBSERVATION, observations)):
-            if not isinstance(mapping, Mapping):
-                raise ParameterError(f"step {role}s must be a mapping channel -> value, not {mapping!r}")
+        for role, mapping in _roles(step):
             for channel in mapping:
                 self.vocabulary.add_channel(str(channel), role) if learn else None
             out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
@@ -254,7 +254,7 @@ class SequenceModel:
         return list(made[2])
 
     def _tail(self, history: Sequence[Hashable]) -> list[Hashable]:
-        items = list(history)
+        items = list(_iterable(history, "a history of items"))
         return items[-(self.library.max_length if self.library is not None else 1):]
 
     def _query(self, history: list, actions: Mapping[str, Hashable], k: int) -> dict:
@@ -276,12 +276,14 @@ class SequenceModel:
         view_of = {name: i for i, name in enumerate(library.view_names)}
         unknown: list[int] = []
         rows = []
+        roles = self.vocabulary.roles
         for step in steps:
-            actions, observations = step
             row = []
-            for role, mapping in ((ACTION, actions), (OBSERVATION, observations)):
+            for role, mapping in _roles(step):
                 symbols = []
                 for channel, value in mapping.items():
+                    if roles.get(str(channel)) != role:
+                        raise ParameterError(_unknown_channel(str(channel), role, roles))
                     s = self._symbol(str(channel), value, learn=False)
                     if s == -1:
                         s = len(self.vocabulary) + len(unknown)
@@ -300,3 +302,37 @@ class SequenceModel:
                     ranked.append((self.vocabulary.name(symbols[0])[1], share))
             out[view.name if view.name != "*" else ITEM] = ranked
         return out
+
+
+def _iterable(value, what: str):
+    """``iter(value)``, or a one-line error saying what was expected."""
+    try:
+        return iter(value)
+    except TypeError:
+        raise ParameterError(f"{what} must be iterable, not {type(value).__name__}") from None
+
+
+def _check_k(k) -> None:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 1000:
+        raise ParameterError(f"k must be an integer in 1..1000, not {k!r}")
+
+
+def _roles(step) -> tuple[tuple[str, Mapping], tuple[str, Mapping]]:
+    """A step's ``(role, mapping)`` pairs, actions first, or a one-line error."""
+    try:
+        actions, observations = step
+    except (TypeError, ValueError):
+        raise ParameterError(f"a step is (actions, observations), two mappings; got {step!r}") from None
+    for role, mapping in ((ACTION, actions), (OBSERVATION, observations)):
+        if not isinstance(mapping, Mapping):
+            raise ParameterError(f"step {role}s must be a mapping channel -> value, not {mapping!r}")
+    return (ACTION, actions), (OBSERVATION, observations)
+
+
+def _unknown_channel(channel: str, role: str, roles: Mapping[str, str]) -> str:
+    """Why a query may not use ``channel`` as ``role``: it was learned in another role, or never."""
+    if channel in roles:
+        return f"channel {channel!r} was learned as an {roles[channel]} channel, not as an {role} channel"
+    known = sorted(c for c, r in roles.items() if r == role)
+    return (f"{role} channel {channel!r} was never learned (the model's {role} channels: "
+            f"{', '.join(map(repr, known)) or 'none'})")

@@ -148,3 +148,41 @@ def test_rank_of_known_items_equals_the_general_path(scoring, monkeypatch):
     monkeypatch.undo()
     with pytest.raises(ParameterError, match="not hashable"):
         model.predict(["a", ["b"]])
+
+
+def test_bad_containers_channels_and_k_are_refused_in_one_line():
+    """Issue 11's bad input, past single items: what is not a sequence, a step or a mapping,
+    a channel the model never learned (or learned in the other role), a k that is not a
+    count: one line naming what was expected, never a Python traceback of the internals."""
+    model = SequenceModel()
+    items = [(lambda: model.learn(None), "a sequence of items must be iterable, not NoneType"),
+             (lambda: model.learn(5), "must be iterable, not int")]
+    for call, message in items:
+        with pytest.raises(ParameterError, match=message):
+            call()
+    model.learn("abcabc")
+    steps = SequenceModel()
+    steps.learn_steps([({"cmd": "R"}, {"pos": 1}), ({"cmd": "L"}, {"pos": 2})] * 5)
+    cases = [(lambda: model.predict(None), "a history of items must be iterable"),
+             (lambda: model.rank("ab", k=True), "k must be an integer in 1..1000, not True"),
+             (lambda: model.rank("ab", k=0), "not 0"),
+             (lambda: model.predict_many(None), "histories must be iterable"),
+             (lambda: model.predict_many(["ab", 5]), "a history of items must be iterable, not int"),
+             (lambda: steps.learn_steps(None), "steps must be iterable"),
+             (lambda: steps.predict_step(None, {"cmd": "R"}), "a history of steps must be iterable"),
+             (lambda: steps.predict_step([5], {"cmd": "R"}), "a step is .actions, observations."),
+             (lambda: steps.predict_step([({}, {"pos": 1})], None), "actions must be a mapping"),
+             (lambda: steps.predict_step([({}, {"pso": 1})], {"cmd": "R"}),
+              "observation channel 'pso' was never learned .the model's observation channels: 'pos'."),
+             (lambda: steps.predict_step([({}, {"pos": 1})], {"cdm": "R"}), "action channel 'cdm' was never learned"),
+             (lambda: steps.predict_step([({}, {"cmd": "R"})], {"cmd": "R"}),
+              "channel 'cmd' was learned as an action channel, not as an observation channel"),
+             (lambda: steps.rank_step([({}, {"pos": 1})], {"cmd": "R"}, k=2.0), "k must be an integer"),
+             (lambda: SequenceModel(max_length="6"), "max_length must be an integer"),
+             (lambda: SequenceModel(max_patterns=3), "max_patterns must be an integer")]
+    for call, message in cases:
+        with pytest.raises(ParameterError, match=message) as raised:
+            call()
+        assert "\n" not in str(raised.value)
+    assert steps.predict_step([({}, {"pos": 2})], {"cmd": "R"}) == {"pos": 1}
+    assert steps.predict_step([({}, {"pos": 99})], {"cmd": "L"}) == {"pos": 2}  # a value never seen is no error
