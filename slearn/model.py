@@ -95,7 +95,7 @@ class SequenceModel:
             return []
         items = [item for tail in tails for item in tail]
         try:
-            item_symbols = self.vocabulary.get_symbols(ITEM, items)
+            item_symbols = self._item_symbols(items)
         except TypeError:
             for item in items:
                 self._symbol(ITEM, item, learn=False)  # raises for the one not hashable
@@ -219,27 +219,45 @@ class SequenceModel:
             out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
         return out[0], out[1]
 
-    def _known_steps(self, items: list[Hashable]) -> list | None:
+    def _known_steps(self, items: Sequence[Hashable]) -> list | None:
         """The items as the predictor's steps, ``((), (symbol,))`` each (the same tuples every
         time), or ``None`` when one was never seen, is not hashable, or nothing was learned."""
         if self.library is None:
             return None
-        if self._steps_for is not self.vocabulary:
-            self._steps_for, self._item_steps = self.vocabulary, {}
-        step_of = self._item_steps
+        step_of = self._steps_of_items()
         try:
             return [step_of[item] for item in items]
         except KeyError:
             pass
         except TypeError:  # not hashable: the general path says so
             return None
-        for item in items:
-            if item not in step_of:
-                symbol = self.vocabulary.get_symbol(ITEM, item)
-                if symbol is None:
-                    return None
-                step_of[item] = ((), (symbol,))
+        if None in self._item_symbols(items):  # (which remembers the steps of the others)
+            return None
         return [step_of[item] for item in items]
+
+    def _item_symbols(self, items: Sequence[Hashable]) -> list[int | None]:
+        """The items' symbols (``None``: never seen), through a dictionary of their steps
+        that every item seen fills; ``TypeError`` for an item that is not hashable."""
+        step_of = self._steps_of_items()
+        try:
+            return [step_of[item][1][0] for item in items]
+        except KeyError:
+            pass
+        out: list[int | None] = []
+        for item in items:
+            step = step_of.get(item)
+            if step is None:
+                symbol = self.vocabulary.get_symbol(ITEM, item)
+                if symbol is not None:
+                    step = step_of[item] = ((), (symbol,))
+            out.append(None if step is None else step[1][0])
+        return out
+
+    def _steps_of_items(self) -> dict:
+        """Item -> its step ``((), (symbol,))``, for the items seen so far (of this vocabulary)."""
+        if self._steps_for is not self.vocabulary:
+            self._steps_for, self._item_steps = self.vocabulary, {}
+        return self._item_steps
 
     def _ranked_items(self, prediction, k: int) -> list[tuple[Hashable, float]]:
         """The item view's ranking of ``prediction`` as ``(item, share)`` pairs, the one made
@@ -253,9 +271,11 @@ class SequenceModel:
             self._ranked_of[id(prediction)] = made  # (the entry keeps the object, so its id)
         return list(made[2])
 
-    def _tail(self, history: Sequence[Hashable]) -> list[Hashable]:
-        items = list(_iterable(history, "a history of items"))
-        return items[-(self.library.max_length if self.library is not None else 1):]
+    def _tail(self, history: Sequence[Hashable]) -> Sequence[Hashable]:
+        keep = self.library.max_length if self.library is not None else 1
+        if type(history) in (str, list, tuple):  # (a slice of these is their last items)
+            return history[-keep:]
+        return list(_iterable(history, "a history of items"))[-keep:]
 
     def _query(self, history: list, actions: Mapping[str, Hashable], k: int) -> dict:
         if self.library is None:

@@ -347,3 +347,33 @@ def test_a_batch_memo_stays_within_its_byte_budget(monkeypatch):
     held_out = simulate_arm(ArmConfig(joints=3, trials=40, seed=4)).to_episode()
     ends = np.arange(1, len(held_out))
     assert_batch_matches(Predictor(library), held_out, np.maximum(0, ends - 4), ends)
+
+
+def test_batches_share_what_they_remember_until_the_library_learns():
+    """A predictor keeps its batches' scratch streams and memo (a batch of a few queries
+    cost a millisecond of allocations and addresses before) and encodes only the steps the
+    queries read: a batch asked again, or a part of it, answers as the step loop does; after
+    the library learned (no new tokens: the dictionaries stay), as a new predictor does."""
+    rng = np.random.default_rng(21)
+    library = PatternLibrary(max_length=3)
+    library.learn(random_episode(rng, 400, observations=3))
+    predictor = Predictor(library)
+    held_out = random_episode(rng, 120, observations=3)
+    ends = np.arange(3, 120)
+    before = assert_batch_matches(predictor, held_out, ends - 3, ends)
+    assert_batch_matches(predictor, held_out, ends[40:50] - 2, ends[40:50])
+    assert_batch_matches(predictor, held_out, ends - 3, ends)
+    library.learn(random_episode(rng, 400, observations=3, actions=(100,)))  # no new tokens
+    after = assert_batch_matches(predictor, held_out, ends - 3, ends)
+    fresh = Predictor(library).predict_batch(held_out, ends - 3, ends)
+    assert all(np.array_equal(a, b) for a, b in zip(after, fresh))
+    assert not np.array_equal(after.token, before.token) or not np.array_equal(after.score, before.score)
+
+
+def test_a_slice_of_steps_is_the_episode_of_those_steps():
+    episode = random_episode(np.random.default_rng(5), 30)
+    steps = episode.steps()
+    for start, stop in ((0, 31), (0, 0), (3, 4), (7, 20), (29, 31)):
+        part = episode.slice_steps(start, stop)
+        assert part.steps() == steps[start:stop] and len(part) == stop - start
+        assert np.array_equal(part.symbols, Episode.from_steps(steps[start:stop]).symbols)

@@ -121,17 +121,28 @@ def single_query(run: np.ndarray, size: int) -> Query:
 
 def state_table(state: tuple, buffers: Buffers) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``predict_queries``
-    reads them: the tree's fields, the mixer's, the scratch streams', the reports', the
-    memo's, then the query's. The caller keeps them alive."""
+    reads them: the tree's fields, the mixer's, the scratch streams', the memo's (the
+    :func:`kept_rows`), then the reports' and the query's. The caller keeps them alive."""
+    return run_table(kept_rows(state, buffers), buffers.out, buffers.query)
+
+
+def run_table(kept: np.ndarray, out: Reports, query: Query) -> np.ndarray:
+    """:func:`state_table` from its :func:`kept_rows` and a run's reports and query."""
+    return np.concatenate((kept, address_table((*out, *query))))
+
+
+def kept_rows(state: tuple, buffers: Buffers) -> np.ndarray:
+    """The rows of :func:`state_table` that stay while the library does not change and the
+    buffers' scratch streams and memo are reused: a caller that keeps them makes only the
+    reports' and the query's rows per run (an address costs a microsecond in Python)."""
     tree, mixer = state
-    scratch, out, memo, query = buffers
-    return address_table((*tree, *mixer, *scratch, *out, *memo, *query))
+    return address_table((*tree, *mixer, *buffers.scratch, *buffers.memo))
 
 
-_TREE, _MIXER, _SCRATCH, _OUT = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields), \
-    len(Tree._fields) + len(Mixer._fields) + len(ViewState._fields)
-_MEMO_AT = _OUT + len(Reports._fields)
-_QUERY_AT = _MEMO_AT + len(Memo._fields)
+_TREE, _MIXER, _SCRATCH = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._fields)
+_MEMO_AT = _SCRATCH + len(ViewState._fields)
+_OUT = _MEMO_AT + len(Memo._fields)
+_QUERY_AT = _OUT + len(Reports._fields)
 
 
 @kernel
