@@ -326,27 +326,34 @@ def test_what_a_predictor_remembers_is_bounded_by_views(monkeypatch):
     assert max(a for a, _ in sizes) == 10 and max(m for _, m in sizes) <= 10
 
 
-def test_a_batch_memo_stays_within_its_byte_budget(monkeypatch):
-    """A memo larger than a core's cache misses on every probe (issue 12): a batch's memo is
-    one slot per query and view, a power of two, within ``MEMO_BYTES`` whatever the batch's
-    size, context length or ranking length; a budget of a few slots answers as the step
-    loop does."""
+def test_memos_stay_within_their_byte_budget(monkeypatch):
+    """A memo larger than a core's cache misses on every probe (issue 12): a memo is a power
+    of two of slots within ``MEMO_BYTES`` whatever the queries, context length or ranking
+    length; a predictor keeps the largest that fits for its single queries and its
+    batches; a budget of two slots answers as the step loop does."""
     import slearn.core.queries as queries
     library = PatternLibrary(max_length=3, vocabulary=arm_vocabulary(3))
     library.learn(simulate_arm(ArmConfig(joints=3, trials=300, seed=3)).to_episode())
     for n, top_k in ((1, 3), (5, 3), (100, 1), (10**5, 3), (10**5, 40)):
-        memo = queries.new_buffers(library, n, top_k).memo
-        slots = len(memo.depth)
-        assert slots & (slots - 1) == 0 and sum(a.nbytes for a in memo) <= queries.MEMO_BYTES
         slot = sum(a.nbytes for a in queries.new_memo(1, library.max_context, top_k))
-        assert slots >= min(3 * n, queries.MEMO_BYTES // (2 * slot))  # the largest power of two within it
+        for memo, wanted in ((queries.new_buffers(library, n, top_k).memo, 3 * n),
+                             (queries.kept_buffers(library, n, top_k).memo, 10**9)):
+            slots = len(memo.depth)
+            assert slots & (slots - 1) == 0 and sum(a.nbytes for a in memo) <= queries.MEMO_BYTES
+            assert slots >= min(wanted, queries.MEMO_BYTES // (2 * slot))  # the largest power of two within it
     assert len(queries.new_buffers(library, 10**5, 3).memo.depth) < 3 * 10**5
+    predictor = Predictor(library)
+    predictor.predict_batch(simulate_arm(ArmConfig(joints=3, trials=5, seed=4)).to_episode(), [0], [1])
+    for memo in (predictor._single.memo, predictor._batch.memo):
+        assert queries.MEMO_BYTES // 2 < sum(a.nbytes for a in memo) <= queries.MEMO_BYTES
     slot = sum(a.nbytes for a in queries.new_memo(1, library.max_context, 3))
     monkeypatch.setattr(queries, "MEMO_BYTES", 3 * slot)  # two slots: contexts collide all the time
     assert len(queries.new_buffers(library, 500, 3).memo.depth) == 2
     held_out = simulate_arm(ArmConfig(joints=3, trials=40, seed=4)).to_episode()
     ends = np.arange(1, len(held_out))
-    assert_batch_matches(Predictor(library), held_out, np.maximum(0, ends - 4), ends)
+    predictor = Predictor(library)
+    assert_batch_matches(predictor, held_out, np.maximum(0, ends - 4), ends)
+    assert len(predictor._batch.memo.depth) == len(predictor._single.memo.depth) == 2
 
 
 def test_batches_share_what_they_remember_until_the_library_learns():

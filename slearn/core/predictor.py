@@ -28,11 +28,10 @@ import numpy as np
 from slearn.core.mixer import KINDS
 from slearn.core.online import Reports, new_reports
 from slearn.core.queries import (
-    SINGLE_MEMO_SLOTS,
     Buffers,
     forget,
+    kept_buffers,
     kept_rows,
-    new_buffers,
     predict_queries,
     run_table,
     single_query,
@@ -341,9 +340,9 @@ class Predictor:
             self._clock = -1
             if compiled:
                 library.prepare()
-                self._batch = new_buffers(library, 0, self.top_k, 1 << 30)  # the largest memo
+                self._batch = kept_buffers(library, 0, self.top_k)
                 self._batch_state = (None, None)
-                buffers = new_buffers(library, 1, self.top_k, SINGLE_MEMO_SLOTS)
+                buffers = kept_buffers(library, 1, self.top_k)
                 out, self._said = packed_reports(buffers.out)
                 self._use_single(buffers._replace(out=out, query=single_query(buffers.query.run, 64)))
         if library.clock != self._clock:

@@ -86,7 +86,6 @@ MEMO_BYTES = 1 << 18  # a memo's size at most: beside the tree's hot part, what 
 #   probe: 16,384 slots (2.8 MB at 12 tokens of context and top 3) answered batches
 #   1.1-1.4x slower than 1,024 slots (170 kB) on every pointer and arm stream measured,
 #   though they remembered more (bench_predict.py, issue 12).
-SINGLE_MEMO_SLOTS = 1 << 10  # slots the memo of a predictor's single queries wants
 _NO_I32, _NO_I64 = np.zeros(0, np.int32), np.zeros(0, np.int64)
 
 
@@ -96,6 +95,12 @@ def memo_slots(wanted: int, max_context: int, top_k: int) -> int:
     slot = sum(a.nbytes for a in new_memo(1, max_context, top_k))
     cap = 1 << max(0, (MEMO_BYTES // slot).bit_length() - 1)
     return 1 << max(0, min(wanted, cap) - 1).bit_length()
+
+
+def kept_buffers(library, queries: int, top_k: int) -> Buffers:
+    """Buffers a predictor keeps for its runs, with the largest memo within ``MEMO_BYTES``
+    (answers stay valid from run to run while the library does not learn)."""
+    return new_buffers(library, queries, top_k, slots=1 << 62)
 
 
 def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> Buffers:

@@ -84,7 +84,8 @@ class Episode:
         return tuple(self.symbols[start:split].tolist()), tuple(self.symbols[split:end].tolist())
 
     def slice_steps(self, start: int, stop: int) -> "Episode":
-        """Steps ``start..stop - 1`` as an episode of their own (views of this one's arrays)."""
+        """Steps ``start..stop - 1`` as an episode of their own (its symbols and actions are
+        views of this one's arrays)."""
         offsets = self.step_offsets[start:stop + 1]
         return Episode(self.symbols[offsets[0]:offsets[-1]], offsets - offsets[0], self.n_actions[start:stop])
 
