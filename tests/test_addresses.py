@@ -35,3 +35,14 @@ def test_a_table_refuses_what_a_kernel_would_misread():
         address_table([np.zeros((4, 4))[:, 1]])
     with pytest.raises(ValueError, match="at most 3 dimensions"):
         address_table([np.zeros((1, 1, 1, 1))])
+
+
+def test_addresses_are_where_the_data_starts_for_every_kind_of_array():
+    """Addresses are read through ctypes where it can (writable, non-empty), else through
+    the array interface: the same numbers either way, views and read-only arrays included."""
+    read_only = np.arange(6, dtype=np.int64)
+    read_only.flags.writeable = False
+    arrays = [np.zeros(5, np.int32), np.zeros(0, np.int64), np.zeros((3, 4))[1:], read_only,
+              np.frombuffer(b"abcd", np.uint8), np.zeros((2, 3, 4), np.int8)[1]]
+    table = address_table(arrays)
+    assert table[::ROW].tolist() == [a.__array_interface__["data"][0] for a in arrays]

@@ -14,6 +14,7 @@ Only C-contiguous arrays are accepted, in a fixed order each kernel knows.
 
 from __future__ import annotations
 
+import ctypes
 from typing import Iterable
 
 import numba
@@ -38,8 +39,17 @@ def address_table(arrays: Iterable[np.ndarray]) -> np.ndarray:
         if not array.flags.c_contiguous or array.ndim > 3:
             raise ValueError(f"a kernel table needs C-contiguous arrays of at most 3 dimensions, "
                              f"not {array.ndim}-D with strides {array.strides}")
-        rows.extend((array.__array_interface__["data"][0], *array.shape, *(0,) * (3 - array.ndim)))
+        rows.extend((_address(array), *array.shape, *(0,) * (3 - array.ndim)))
     return np.array(rows, np.int64)
+
+
+def _address(array: np.ndarray) -> int:
+    """Where ``array``'s data starts: through ctypes (0.5 us), or for an array that is
+    read-only or empty (ctypes refuses those) through its array interface (1.4 us)."""
+    try:
+        return ctypes.addressof(ctypes.c_char.from_buffer(array.data))
+    except (TypeError, ValueError):
+        return array.__array_interface__["data"][0]
 
 
 @intrinsic
