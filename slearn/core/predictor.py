@@ -236,8 +236,12 @@ class Predictor:
     def _run(self, codes: StepCodes, starts: np.ndarray, ends: np.ndarray, out: Reports) -> Reports:
         """Every view's report at step ``ends[i]`` after replaying ``starts[i]..``: row
         ``i * views + v`` of ``out`` (new reports, ``new_reports``). The scratch streams and
-        the memo are the predictor's batch buffers, kept with their table rows."""
+        the memo are the predictor's batch buffers, kept with their table rows; a batch with
+        as many reports as the memo has slots fills it anyway, and gets new ones (as every
+        batch did before they were kept: just written, they are in the cache)."""
         library = self.library
+        if len(out.predicted) >= len(self._batch.memo.depth):
+            self._batch, self._batch_state = kept_buffers(library, 0, self.top_k), (None, None)
         work = self._batch
         if library.tree is not self._batch_state[0] or library.mixer is not self._batch_state[1]:
             forget(work.memo)
