@@ -56,7 +56,7 @@ from slearn.replay.metrics import (
 )
 from slearn.replay.windows import data_window
 
-SCHEMA = "slearn.replay/2"
+SCHEMA = "slearn.replay/3"
 """Name and version of the JSON document (:meth:`Evaluation.to_dict`)."""
 
 FROZEN, ONLINE = "frozen", "online"
@@ -89,6 +89,9 @@ class EpisodeOutcome:
             (nothing can predict it), else 0.
         truth_probability: the product of the views' shares behind what happened (frozen
             replays; NaN online, where the library has moved on since).
+        confused: ``(predicted, actual) -> count`` of each view's wrong predictions, in the
+            library's tokens (one channel's values in a factored library; abstentions left
+            out, so a step where one channel abstained and the others were right is none).
     """
 
     name: str
@@ -103,6 +106,7 @@ class EpisodeOutcome:
     evaluated: np.ndarray
     first_step: int
     truth_probability: np.ndarray
+    confused: Counter = field(default_factory=Counter)
 
     def __len__(self) -> int:
         return len(self.actual)
@@ -199,12 +203,12 @@ class Evaluation:
         return self.predictions / self.elapsed_s if self.elapsed_s > 0 else math.nan
 
     def to_dict(self) -> dict:
-        """The ``slearn.replay/2`` JSON document.
+        """The ``slearn.replay/3`` JSON document.
 
         Rates are in [0, 1] and ``null`` when undefined (no events); lifts are in
         percentage points (library accuracy minus baseline accuracy). Keys::
 
-            schema        "slearn.replay/2"
+            schema        "slearn.replay/3" (/2 counted confusions of whole steps)
             mode          "frozen" | "online"
             top_k, window ranked guesses counted; steps per learning-curve window
             scoring       {rule: "adaptive" | "literal", factored}
@@ -219,8 +223,10 @@ class Evaluation:
                             curve: [{start_step, end_step, events, accuracy,
                                      frequency_accuracy, markov_accuracy,
                                      persistence_accuracy, channel_accuracy: [per channel, in "channels" order]}]}]
-            confusions    [{predicted, actual, count}] most frequent first,
-                          "channel=value, ..." labels
+            confusions    [{predicted, actual, count}] most frequent first, each
+                          within one view ("channel=value" labels: one channel in
+                          a factored library, a step's channels otherwise);
+                          abstentions are not confusions
             speed         {predictions, evaluation_s, predictions_per_s, total_s}
             notes, warnings  [str]
             honest        intervals, the persistence baseline, paired lift intervals,
@@ -338,7 +344,10 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
     length = _step_max(offsets, reports.length, use)
     columns = (actual, join(reports.predicted), top_k, score, length, join(guesses.frequency),
                join(guesses.markov), join(guesses.persistence), evaluated)
-    return EpisodeOutcome(name, *(c[first:] for c in columns), first, truth[first:])
+    scored = reports.context.copy()
+    scored[:codes.offsets[first]] = False  # (a first reading is not predicted)
+    return EpisodeOutcome(name, *(c[first:] for c in columns), first, truth[first:],
+                          confusions(reports.predicted, codes.token, scored))
 
 
 @kernel
@@ -433,8 +442,8 @@ def evaluate(library: PatternLibrary | LiteralLibrary,
         if on_episode is not None:
             on_episode(point)
     result.warnings += result.honest.warnings()
-    result.confusions = [(decoder.label(p), decoder.label(a), n)
-                         for (p, a), n in wrong.most_common(N_CONFUSIONS)]
+    labels = ChannelDecoder(library.tokens, vocabulary)  # each view's own values
+    result.confusions = [(labels.label(p), labels.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
     result.notes.append(_fit_note(fit, online))
     result.scoring = {"rule": "literal" if isinstance(library, LiteralLibrary) else "adaptive",
                       "factored": bool(getattr(library, "factored", False))}
@@ -451,7 +460,7 @@ def _collect(result: Evaluation, point: Checkpoint, wrong: Counter, keep_outcome
     result.channels += point.episode.channels
     result.episodes.append(point.episode)
     result.predictions, result.elapsed_s = point.predictions, point.elapsed_s
-    wrong.update(confusions(o.predicted, o.actual, o.evaluated))
+    wrong.update(o.confused)
     if point.episode.truncated:
         result.warnings.append(point.episode.read)
     if keep_outcomes:

@@ -158,6 +158,29 @@ def test_several_observation_channels_are_scored_channel_by_channel():
     assert all(label.startswith("a=") for p, a, _ in result.confusions for label in (p, a))
 
 
+def test_confusions_are_counted_channel_by_channel_without_abstentions():
+    """In a factored library each channel is predicted on its own, so a confusion is one
+    channel's value taken for another of the same channel: a step where one channel was
+    wrong and the other right is one confusion of the wrong channel, not of whole steps,
+    and an abstention none (before, a replay of the PR2 log listed ten 'confusions' that
+    were all one channel's abstentions next to a right prediction of another)."""
+    vocabulary = two_channel_vocabulary()
+    library = PatternLibrary(max_length=2, vocabulary=vocabulary)
+    for seed in range(3):
+        library.learn(two_channel_episode(vocabulary, 3000, seed))
+    steps = two_channel_episode(vocabulary, 4000, 9).steps()
+    strange = vocabulary.symbol("b", 7)  # a value of b the library never saw
+    steps[100:120] = [(u, (o[0], strange)) for u, o in steps[100:120]]
+    result = evaluate(library, held_out(Episode.from_steps(steps)), vocabulary)
+    channels = {c["channel"]: c for c in result.channels.to_list()}
+    assert channels["a"]["accuracy"] > 0.99 and 0.4 < channels["b"]["accuracy"] < 0.6
+    assert result.confusions and all("," not in p and "," not in a and p.split("=")[0] == a.split("=")[0]
+                                     for p, a, _ in result.confusions)
+    b_wrong = channels["b"]["events"] - channels["b"]["correct"] - channels["b"]["abstained"]
+    assert sum(n for p, _, n in result.confusions if p.startswith("b=")) == b_wrong
+    assert "b=7" in [a for _, a, _ in result.confusions]  # predicted something else, wrong
+
+
 def test_unseen_values_are_wrong_predictions_not_crashes():
     library, _ = trained(seeds=(0,), trials=500, baselines=False)
     vocabulary = library.vocabulary  # replay registers unseen values where the library reads them
@@ -298,7 +321,7 @@ def test_json_document_is_versioned_and_strict_json():
     doc = small_result().to_dict()
     text = json.dumps(doc, allow_nan=False)
     doc = json.loads(text)
-    assert doc["schema"] == SCHEMA == "slearn.replay/2"
+    assert doc["schema"] == SCHEMA == "slearn.replay/3"
     assert {"mode", "top_k", "window", "totals", "baselines", "channels", "episodes", "confusions",
             "speed", "notes", "warnings"} <= set(doc)
     totals = doc["totals"]

@@ -58,7 +58,7 @@ def test_json_is_the_only_thing_on_stdout(files):
                  "--top-k", "2")
     assert result.exit_code == 0, result.stderr
     doc = json.loads(result.stdout)
-    assert doc["schema"] == "slearn.replay/2" and doc["mode"] == "frozen"
+    assert doc["schema"] == "slearn.replay/3" and doc["mode"] == "frozen"
     assert doc["top_k"] == 2 and doc["window"] == 100
     assert doc["totals"]["events"] == 3500
     assert [e["events"] for e in doc["episodes"]] == [1500, 2000]

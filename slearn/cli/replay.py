@@ -54,7 +54,7 @@ def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
 @click.option("--baseline-train", "baseline_train", multiple=True, type=click.Path(dir_okay=False),
               help="Training log for the baselines (repeat; default: the library's own inputs "
                    "when still on disk).")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/2).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/3).")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the learning curves (PNG).")
 @click.option("--report", type=click.Path(dir_okay=False), help="Write a self-contained HTML report.")
 @click.option("--write-mcap", "write_mcap", type=click.Path(),
