@@ -229,7 +229,9 @@ def channel_hits(decoder: ChannelDecoder, predicted: np.ndarray, actual: np.ndar
     """
     truth = decoder.split(actual)
     events = truth >= 0
-    hits = {"events": events, "abstained": events & (predicted < 0)[:, None]}
+    # a channel the prediction has no value for was abstained on: every view abstained, or
+    # (a factored library) this channel's view did while others spoke
+    hits = {"events": events, "abstained": events & (decoder.split(predicted) < 0)}
     for name, tokens in ((MODEL, predicted), ("frequency", frequency), ("markov", markov),
                          ("persistence", persistence)):
         hits[name] = events & (decoder.split(tokens) == truth)

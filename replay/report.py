@@ -30,6 +30,11 @@ def _span(interval: list[float] | None, scale: float = 100.0, signed: bool = Fal
     return f"[{a}, {b}]"
 
 
+def _abstained(channel: dict) -> float | None:
+    """A channel's share of events the library abstained on (``None`` without events)."""
+    return channel["abstained"] / channel["events"] if channel["events"] else None
+
+
 def _summary_rows(e: Evaluation) -> list[tuple[str, str, str, str, str, str]]:
     """``(predictor, accuracy, its 95 % interval, abstained, lift, the lift's interval)`` rows."""
     t, h = e.totals, (e.honest.to_dict() if e.honest is not None else None)
@@ -57,13 +62,14 @@ def format_table(evaluation: Evaluation) -> str:
     lines.append(f"  {'library top-' + str(e.top_k):<22} {_pct(t.rate('top_k')):>10} "
                  f"{_span(h and h['top_k_interval']):>17}")
     head = "".join(f" {name:>11}" for name in BASELINES)
-    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'95 % interval':>17}{head}"]
+    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'95 % interval':>17} "
+                  f"{'abstained':>10}{head}"]
     by_channel = {c["channel"]: c for c in (h["channels"] if h else [])}
     for c in e.channels.to_list():
         extra = by_channel.get(c["channel"], {})
         cells = "".join(f" {_pct(c[f'{name}_accuracy']):>11}" for name in BASELINES)
         lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
-                     f"{_span(extra.get('accuracy_interval')):>17}{cells}")
+                     f"{_span(extra.get('accuracy_interval')):>17} {_pct(_abstained(c)):>10}{cells}")
     lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10}{head}"]
     for ep in e.episodes:
         mark = " (truncated)" if ep.truncated else ""
@@ -115,8 +121,8 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
                     + [[f"library top-{e.top_k}", _pct(t.rate("top_k")), "", "", "", ""]]),
              f'<img alt="learning curves" src="data:image/png;base64,{image}">',
              "<h2>Channels</h2>",
-             _table(["channel", "events", "library", *BASELINES],
-                    [[c["channel"], c["events"], _pct(c["accuracy"]),
+             _table(["channel", "events", "library", "abstained", *BASELINES],
+                    [[c["channel"], c["events"], _pct(c["accuracy"]), _pct(_abstained(c)),
                       *(_pct(c[f"{name}_accuracy"]) for name in BASELINES)]
                      for c in e.channels.to_list()]),
              "<h2>Logs</h2>",

@@ -181,6 +181,30 @@ def test_confusions_are_counted_channel_by_channel_without_abstentions():
     assert "b=7" in [a for _, a, _ in result.confusions]  # predicted something else, wrong
 
 
+def test_a_channel_whose_view_abstains_is_counted_abstained_not_wrong():
+    """In a factored library one channel's view may abstain while the others speak (its
+    last value was never seen: a real log's slowly drifting joint, held out past the range
+    seen in training). That channel's events are abstentions, shown apart, not wrong
+    predictions; before, a channel was counted abstained only when every view was."""
+    vocabulary = Vocabulary()
+    vocabulary.add_channel("a", OBSERVATION)
+    vocabulary.add_channel("b", OBSERVATION)
+    rng = random.Random(4)
+
+    def episode(n, strange=()):
+        return Episode.from_steps([((), (vocabulary.symbol("a", t % 5),
+                                         vocabulary.symbol("b", 7 if t in strange else rng.randint(0, 1))))
+                                   for t in range(n)])
+
+    library = PatternLibrary(max_length=2, vocabulary=vocabulary)
+    library.learn(episode(3000))
+    result = evaluate(library, held_out(episode(400, strange=range(100, 110))), vocabulary)
+    channels = {c["channel"]: c for c in result.channels.to_list()}
+    assert channels["a"]["abstained"] == 0 and channels["a"]["accuracy"] > 0.99
+    assert channels["b"]["abstained"] == 10  # the step after each value never seen
+    assert result.totals.abstained == 0  # no step had every view abstain
+
+
 def test_unseen_values_are_wrong_predictions_not_crashes():
     library, _ = trained(seeds=(0,), trials=500, baselines=False)
     vocabulary = library.vocabulary  # replay registers unseen values where the library reads them
