@@ -74,6 +74,7 @@ class SequenceModel:
 
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
         """Up to ``k`` next items, best first, each with the share of its context behind it."""
+        self._use("sequence", learning=False)
         _check_k(k)
         tail = self._tail(history)
         steps = self._known_steps(tail)
@@ -84,6 +85,7 @@ class SequenceModel:
 
     def predict_many(self, histories: Iterable[Sequence[Hashable]]) -> list[Hashable | None]:
         """:meth:`predict` for many histories, in one compiled call (the same answers)."""
+        self._use("sequence", learning=False)
         histories = _iterable(histories, "histories")
         if self.library is None:
             return [None for _ in histories]

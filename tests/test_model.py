@@ -184,5 +184,8 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
         with pytest.raises(ParameterError, match=message) as raised:
             call()
         assert "\n" not in str(raised.value)
+    for call in (lambda: steps.predict("ab"), lambda: steps.predict_many(["ab"]), lambda: model.predict_step([], {})):
+        with pytest.raises(ParameterError, match="use the matching methods"):
+            call()
     assert steps.predict_step([({}, {"pos": 2})], {"cmd": "R"}) == {"pos": 1}
     assert steps.predict_step([({}, {"pos": 99})], {"cmd": "L"}) == {"pos": 2}  # a value never seen is no error
