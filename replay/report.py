@@ -62,19 +62,22 @@ def format_table(evaluation: Evaluation) -> str:
     lines.append(f"  {'library top-' + str(e.top_k):<22} {_pct(t.rate('top_k')):>10} "
                  f"{_span(h and h['top_k_interval']):>17}")
     head = "".join(f" {name:>11}" for name in BASELINES)
-    lines += ["", f"  {'channel':<32} {'events':>9} {'library':>10} {'95 % interval':>17} "
+    channels = e.channels.to_list()
+    wide = max([32, *(len(c["channel"]) for c in channels)])  # (ROS joint channels run long)
+    lines += ["", f"  {'channel':<{wide}} {'events':>9} {'library':>10} {'95 % interval':>17} "
                   f"{'abstained':>10}{head}"]
     by_channel = {c["channel"]: c for c in (h["channels"] if h else [])}
-    for c in e.channels.to_list():
+    for c in channels:
         extra = by_channel.get(c["channel"], {})
         cells = "".join(f" {_pct(c[f'{name}_accuracy']):>11}" for name in BASELINES)
-        lines.append(f"  {c['channel']:<32} {c['events']:>9} {_pct(c['accuracy']):>10} "
+        lines.append(f"  {c['channel']:<{wide}} {c['events']:>9} {_pct(c['accuracy']):>10} "
                      f"{_span(extra.get('accuracy_interval')):>17} {_pct(_abstained(c)):>10}{cells}")
-    lines += ["", f"  {'log':<40} {'events':>9} {'library':>10} {'abstained':>10}{head}"]
-    for ep in e.episodes:
-        mark = " (truncated)" if ep.truncated else ""
+    logs = [os.path.basename(ep.name) + (" (truncated)" if ep.truncated else "") for ep in e.episodes]
+    wide = max([40, *map(len, logs)])
+    lines += ["", f"  {'log':<{wide}} {'events':>9} {'library':>10} {'abstained':>10}{head}"]
+    for ep, log in zip(e.episodes, logs):
         cells = "".join(f" {_pct(ep.tally.rate(name)):>11}" for name in BASELINES)
-        lines.append(f"  {os.path.basename(ep.name) + mark:<40} {ep.tally.events:>9} "
+        lines.append(f"  {log:<{wide}} {ep.tally.events:>9} "
                      f"{_pct(ep.tally.accuracy):>10} {_pct(ep.tally.rate('abstained')):>10}{cells}")
     if e.confusions:
         lines += ["", "  most frequent confusions (predicted -> actual):"]

@@ -376,6 +376,29 @@ def test_plot_is_a_png_and_report_is_one_self_contained_html_file(tmp_path):
     assert "markov baseline" in table and "/pointer/position" in table
 
 
+
+def test_the_text_tables_stay_aligned_with_long_channel_and_log_names():
+    """ROS channels run long (``/joint_states:position[name=laser_tilt_mount_joint]``):
+    every row of a table puts its numbers under their headers."""
+    from slearn.replay.report import format_table
+
+    vocabulary = Vocabulary()
+    long_a, long_b = "/joint_states:position[name=laser_tilt_mount_joint]", "/b"
+    vocabulary.add_channel(long_a, OBSERVATION)
+    vocabulary.add_channel(long_b, OBSERVATION)
+    steps = [((), (vocabulary.symbol(long_a, t % 5), vocabulary.symbol(long_b, t % 3))) for t in range(600)]
+    library = PatternLibrary(max_length=2, vocabulary=vocabulary)
+    library.learn(Episode.from_steps(steps))
+    name = "/logs/" + "a_recording_with_a_long_name_" * 3 + ".mcap"
+    lines = format_table(evaluate(library, [(name, Episode.from_steps(steps), None)], vocabulary)).splitlines()
+    for header in ("channel", "log"):
+        at = next(i for i, line in enumerate(lines) if line.startswith(f"  {header} "))
+        end = lines[at].index("events") + len("events")
+        rows = lines[at + 1:lines.index("", at)]
+        assert len(rows) == {"channel": 2, "log": 1}[header]
+        assert all(row[:end].endswith("599") for row in rows), rows  # (the first reading is not predicted)
+
+
 # --- logs on disk ---------------------------------------------------------------------------------
 
 
