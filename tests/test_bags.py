@@ -210,3 +210,28 @@ def test_a_ros1_bag_cut_short_is_salvaged_in_log_time_order(tmp_path):
     not_a_bag.write_bytes(b"hello")
     with pytest.raises(InputError, match="cannot be read as a ROS 1 bag"):
         open_log(not_a_bag)
+
+
+def test_a_log_is_hashed_once_while_it_is_unchanged(tmp_path, monkeypatch):
+    """Provenance hashes whole logs; a replay of a library's own training log (``--split``)
+    asks for it as a training log and as a held-out log: one read. A log rewritten (new
+    bytes, new time) is read again and gets its new digest."""
+    import hashlib
+    import os
+
+    import slearn.io.bags as bags
+
+    reads = []
+    real_open = open
+    monkeypatch.setattr(bags, "open", lambda path, *a, **k: reads.append(path) or real_open(path, *a, **k),
+                        raising=False)
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"first bytes")
+    first = log_record(log)
+    assert log_record(log) == first and reads == [str(log)]
+    log.write_bytes(b"other bytes, longer")
+    os.utime(log, ns=(log.stat().st_atime_ns, log.stat().st_mtime_ns + 10**9))
+    assert log_record(log)["sha256"] == hashlib.sha256(b"other bytes, longer").hexdigest() != first["sha256"]
+    assert len(reads) == 2
+    with pytest.raises(InputError, match="cannot read"):
+        log_record(tmp_path / "gone.mcap")
