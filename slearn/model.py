@@ -22,7 +22,7 @@ import numpy as np
 
 from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary, check_parameters
 from slearn.core.literal import LiteralLibrary
-from slearn.core.predictor import Predictor
+from slearn.core.predictor import Predictor, check_top_k
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 from slearn.errors import ParameterError
@@ -75,7 +75,7 @@ class SequenceModel:
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
         """Up to ``k`` next items, best first, each with the share of its context behind it."""
         self._use("sequence", learning=False)
-        _check_k(k)
+        check_top_k(k, "k")
         tail = self._tail(history)
         steps = self._known_steps(tail)
         if steps is None:  # an item never seen: the general path gives it a symbol of its own
@@ -154,7 +154,7 @@ class SequenceModel:
                   k: int = 3) -> dict[str, list[tuple[Hashable, float]]]:
         """Per observation channel, up to ``k`` next values with their shares, best first."""
         self._use("steps", learning=False)
-        _check_k(k)
+        check_top_k(k, "k")
         if not isinstance(actions, Mapping):
             raise ParameterError(f"actions must be a mapping channel -> value, not {actions!r}")
         return self._query(list(_iterable(history, "a history of steps")), actions, k)
@@ -332,11 +332,6 @@ def _iterable(value, what: str):
         return iter(value)
     except TypeError:
         raise ParameterError(f"{what} must be iterable, not {type(value).__name__}") from None
-
-
-def _check_k(k) -> None:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 1000:
-        raise ParameterError(f"k must be an integer in 1..1000, not {k!r}")
 
 
 def _roles(step) -> tuple[tuple[str, Mapping], tuple[str, Mapping]]:

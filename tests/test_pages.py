@@ -65,9 +65,11 @@ def test_small_pages_turns_huge_pages_off_for_its_process():
 @linux_only
 def test_the_command_line_runs_with_small_pages_and_writes_the_same_bytes(log, tmp_path):
     small, system = tmp_path / "small.parquet", tmp_path / "system.parquet"
-    assert _cli("small", "learn", log, "-o", small, "-q") in ("0", "unknown")
-    assert _cli("system", "learn", log, "-o", system, "-q") in ("1", "unknown")
+    said = _cli("small", "learn", log, "-o", small, "-q"), _cli("system", "learn", log, "-o", system, "-q")
     assert small.read_bytes() == system.read_bytes()
+    if "unknown" in said:
+        pytest.skip("this kernel does not report THP_enabled")
+    assert said == ("0", "1")
 
 
 def test_ray_tasks_take_small_pages_for_their_worker(log, monkeypatch):

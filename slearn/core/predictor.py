@@ -113,8 +113,7 @@ class Predictor:
     :class:`~slearn.core.literal.LiteralLibrary`)."""
 
     def __init__(self, library, top_k: int = 3) -> None:
-        if isinstance(top_k, bool) or not isinstance(top_k, int) or not 1 <= top_k <= 1000:
-            raise ParameterError(f"top_k must be an integer in 1..1000, not {top_k!r}")
+        check_top_k(top_k)
         self.library = library
         self.top_k = top_k
         self._arrays = None  # what the token dictionaries were built for
@@ -455,6 +454,12 @@ class Predictor:
         out = library.run(codes, learn=False, record=True, top_k=self.top_k)
         first = int(codes.offsets[-2])
         return self._single_prediction(Reports(*(a[first:first + n_views] for a in out)))
+
+
+def check_top_k(top_k, name: str = "top_k") -> None:
+    """Refuse a ranking length that is not an integer in 1..1000 (``name`` is the caller's)."""
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or not 1 <= top_k <= 1000:
+        raise ParameterError(f"{name} must be an integer in 1..1000, not {top_k!r}")
 
 
 def _view_prediction(view: int, name: str, observations: tuple[int, ...] | None, score: float,
