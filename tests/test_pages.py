@@ -78,7 +78,7 @@ def test_ray_tasks_take_small_pages_for_their_worker(log, monkeypatch):
     monkeypatch.setattr(distributed, "small_pages", lambda: calls.append("read") or True)
     monkeypatch.setattr(merge_tree, "small_pages", lambda: calls.append("merge_tree") or True)
     spec = pointer_spec()
-    distributed.read_log(str(log), spec.to_dict(), spec.source, None)
+    list(distributed.read_log(str(log), spec.to_dict(), spec.source, None))
     stats, library = merge_tree.learn_log(str(log), spec.to_dict(), spec.source, 4, None)
     merge_tree.merge_pair(library, None)
     merge_tree.merge_pair(library, library)

@@ -21,8 +21,10 @@ from slearn.cli import main
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import InputError
 from slearn.io.library_file import load_library
+from slearn.io.serialize import read_episodes
 from slearn.io.slicing import time_slice
 from slearn.io.spec import pointer_spec
+from slearn.jobs import distributed
 from slearn.jobs.cluster import check_visible, require_ray  # noqa: E402
 from slearn.jobs.distributed import RayReader  # noqa: E402
 from slearn.jobs.learn import learn_files
@@ -186,16 +188,36 @@ def _kill_a_reading_worker(deadline_s: float) -> int | None:
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="finds the worker through /proc")
-def test_a_killed_worker_is_retried_and_the_library_is_the_same(local_ray, big_logs, tmp_path):
+@pytest.mark.parametrize("piece_events", [distributed.STREAMED_EVENTS, 1500])
+def test_a_killed_worker_is_retried_and_the_library_is_the_same(local_ray, big_logs, tmp_path, piece_events):
+    # with pieces of 1,500 events a log streams one per chunk it reads, so the kill comes mid-stream,
+    # after the driver learned some: the task runs again and the rest follows
     big = big_logs
     learn_files(big, tmp_path / "one.parquet")
     killed = []
     killer = threading.Thread(target=lambda: killed.append(_kill_a_reading_worker(60)))
     killer.start()
-    learn_files(big, tmp_path / "many.parquet", reader=RayReader(local_ray))
+    learn_files(big, tmp_path / "many.parquet", reader=RayReader(local_ray, piece_events=piece_events))
     killer.join()
     assert killed[0] is not None, "no read task was seen running"
     assert (tmp_path / "many.parquet").read_bytes() == (tmp_path / "one.parquet").read_bytes()
+
+
+def test_a_read_task_streams_its_log_in_pieces_with_the_names_they_need(big_logs):
+    spec = pointer_spec()
+    items = list(distributed.read_log(big_logs[0], spec.to_dict(), spec.source, None, 4000))
+    pieces, end = items[:-1], items[-1]
+    assert len(pieces) >= 2 and "report" not in pieces[0] and end["events"] == sum(len(p["symbols"]) for p in pieces)
+    assert pieces[0]["first"] and pieces[-1]["last"] and not any(p["last"] for p in pieces[:-1])
+    names = [n for p in pieces for n in p["names"]]
+    assert len(names) == len(set(names)) == 1 + max(int(p["symbols"].max()) for p in pieces)
+    known = 0
+    for p in pieces:  # a piece uses only symbols named by then
+        known += len(p["names"])
+        assert int(p["symbols"].max()) < known
+    (whole,) = [e for _, e, _ in read_episodes([big_logs[0]], spec, Vocabulary())]
+    assert np.array_equal(np.concatenate([p["symbols"] for p in pieces]), whole.symbols)
+    assert end["report"]["n_messages"] == 24001 and not end["warnings"]
 
 
 def test_without_ray_workers_say_what_to_install(monkeypatch, tmp_path):

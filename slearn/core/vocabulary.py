@@ -87,6 +87,10 @@ class Vocabulary:
     def __len__(self) -> int:
         return len(self._names)
 
+    def names(self, start: int = 0) -> list[tuple[str, Hashable]]:
+        """``(channel, value)`` of symbols ``start, start + 1, ...``, in symbol order."""
+        return self._names[start:]
+
     def items(self) -> Iterable[tuple[int, str, Hashable]]:
         """``(symbol, channel, value)`` for every symbol, in symbol order."""
         for symbol, (channel, value) in enumerate(self._names):

@@ -387,8 +387,10 @@ def _no_events() -> _Events:
 class _EpisodeStream:
     """One episode: values in, pieces of complete steps out (see the module docstring)."""
 
-    def __init__(self, name: str, spec: Spec, symbols: _Symbols, emit: Callable[[Piece], None]) -> None:
+    def __init__(self, name: str, spec: Spec, symbols: _Symbols, emit: Callable[[Piece], None],
+                 piece_events: int | None = None) -> None:
         self.name, self.spec, self.symbols, self.emit = name, spec, symbols, emit
+        self.piece_events = piece_events or PIECE_EVENTS
         self.key = 0  # the episode marker it follows (0: none)
         self.is_action = np.array([c.role == ACTION for c in spec.channels], bool)
         self.change = [] if spec.mode == "tick" else [
@@ -452,7 +454,7 @@ class _EpisodeStream:
 
     def _take_builder(self, final: bool) -> None:
         builder = self.builder
-        if final or len(builder.symbols) >= PIECE_EVENTS:
+        if final or len(builder.symbols) >= self.piece_events:
             episode = cast("_TickSampler", self.sampler).finish() if final else builder.take()
             self.done.append((episode.symbols, np.diff(episode.step_offsets), episode.n_actions))
             self.done_events += episode.n_events
@@ -477,7 +479,7 @@ class _EpisodeStream:
             self._flush(False)
 
     def _flush(self, final: bool) -> None:
-        if not final and self.done_events < PIECE_EVENTS:
+        if not final and self.done_events < self.piece_events:
             return
         symbols = np.concatenate([d[0] for d in self.done] or [np.zeros(0, np.int32)])
         sizes = np.concatenate([d[1] for d in self.done] or [np.zeros(0, np.int64)])
@@ -529,12 +531,12 @@ class _LogReader:
     """The value batches of one log, cut into episodes at the episode markers."""
 
     def __init__(self, path: str, spec: Spec, vocabulary: Vocabulary, ranges,
-                 emit: Callable[[Piece], None], new_stream=None) -> None:
+                 emit: Callable[[Piece], None], new_stream=None, piece_events: int | None = None) -> None:
         from slearn.io.serialize import _entries_by_topic
 
         self.path, self.spec, self.emit = path, spec, emit
         self.symbols = _Symbols(spec, vocabulary, path, ranges)
-        self.new_stream = new_stream or (lambda name: _EpisodeStream(name, spec, self.symbols, emit))
+        self.new_stream = new_stream or (lambda name: _EpisodeStream(name, spec, self.symbols, emit, piece_events))
         self.by_topic = _entries_by_topic(spec)
         self.cache = DecoderCache()
         self.readers: dict[int, _ChannelReader] = {}
@@ -638,7 +640,8 @@ def _segments(marker: np.ndarray) -> Iterator[tuple[int, int, int]]:
 
 
 def iter_pieces(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary, report: ReadReport,
-                progress: bool = False, window=None, ranges=None, new_stream=None) -> Iterator[Piece]:
+                progress: bool = False, window=None, ranges=None, new_stream=None,
+                piece_events: int | None = None) -> Iterator[Piece]:
     """The pieces of the episodes of one log, in order (see the module docstring);
     ``report`` receives the read report. ``new_stream(name)`` makes what each episode's
     values go to (default: an episode stream that emits the pieces)."""
@@ -647,7 +650,7 @@ def iter_pieces(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary, rep
 
     path = os.fspath(path)
     pieces: list[Piece] = []
-    reader = _LogReader(path, spec, vocabulary, ranges, pieces.append, new_stream)
+    reader = _LogReader(path, spec, vocabulary, ranges, pieces.append, new_stream, piece_events)
     with open_log(path) as log, _Progress(path, progress) as bar:
         low, high = _window(log, window)
         for _ in reader.read(log, low, high, bar.update):

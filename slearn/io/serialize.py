@@ -514,11 +514,12 @@ def read_episodes(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Vo
     for name, piece, report, _, last in read_pieces(paths, spec, vocabulary, progress, window):
         parts.append(piece)
         if last:
-            yield name, _joined(parts), report
+            yield name, joined(parts), report
             parts = []
 
 
-def _joined(parts: list[Episode]) -> Episode:
+def joined(parts: list[Episode]) -> Episode:
+    """The consecutive pieces of one episode as the episode."""
     if len(parts) == 1:
         return parts[0]
     sizes = np.concatenate([np.diff(p.step_offsets) for p in parts])
@@ -528,12 +529,14 @@ def _joined(parts: list[Episode]) -> Episode:
 
 
 def read_pieces(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Vocabulary,
-                progress: bool = False, window: TimeSlice | dict[str, TimeSlice] | None = None
-                ) -> Iterator[tuple[str, Episode, ReadReport, bool, bool]]:
+                progress: bool = False, window: TimeSlice | dict[str, TimeSlice] | None = None,
+                piece_events: int | None = None) -> Iterator[tuple[str, Episode, ReadReport, bool, bool]]:
     """:func:`read_episodes` in bounded memory: ``(name, piece, report, first, last)``, each
     episode as consecutive pieces of complete steps (``first`` and ``last`` mark its ends;
     the report is the log's on the last piece of its last episode). Learning the pieces
-    in order, each after the previous one of its episode, is learning the episode."""
+    in order, each after the previous one of its episode, is learning the episode. A piece
+    leaves when it holds ``piece_events`` events (default :data:`slearn.io.ingest.PIECE_EVENTS`)
+    or its episode ends."""
     if not spec.fitted:
         raise SpecError(f"{spec.source}: quantile bins are not fitted: fit them on the training "
                         f"logs first (fit_spec)")
@@ -546,7 +549,8 @@ def read_pieces(paths: Iterable[str | os.PathLike], spec: Spec, vocabulary: Voca
         report = ReadReport(path)
         log_window = window.get(path) if isinstance(window, dict) else window
         pending = None
-        for piece in iter_pieces(path, spec, vocabulary, report, progress, log_window, ranges):
+        for piece in iter_pieces(path, spec, vocabulary, report, progress, log_window, ranges,
+                                 piece_events=piece_events):
             if pending is not None:
                 yield pending.name, pending.episode, ReadReport(path), pending.first, pending.last
             pending = piece

@@ -162,6 +162,23 @@ def gather(ray, refs: list, names: list[str], on_done: Callable[[int, Any], None
     return results
 
 
+def streamed(ray, stream, name: str) -> Iterator[Any]:
+    """The values a Ray generator task yields, in order, as they arrive (``stream`` is its
+    ``ObjectRefGenerator``); errors as :func:`gather` raises them.
+
+    Raises:
+        SlearnError: the error the task raised on purpose, as it was raised.
+        ClusterError: the task's worker died more than ``MAX_RETRIES`` times.
+    """
+    try:
+        for ref in stream:
+            yield _get(ray, ref, name)
+    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
+            ray.exceptions.ObjectLostError) as err:  # iterating found the task dead
+        raise ClusterError(f"{name}: a Ray worker died {MAX_RETRIES + 1} times on this task "
+                           f"({type(err).__name__}); see the Ray logs (/tmp/ray/session_latest/logs)") from None
+
+
 def _get(ray, ref, name: str):
     try:
         return ray.get(ref)

@@ -269,7 +269,9 @@ def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: Learn
         pieces = job.pieces
     elif reader is read_episodes:  # read here, in pieces
         pieces = read_pieces(paths, job.spec, job.vocabulary, progress, window)
-    else:  # whole episodes from another reader (Ray)
+    elif hasattr(reader, "pieces"):  # read elsewhere, in pieces (Ray)
+        pieces = reader.pieces(paths, job.spec, job.vocabulary, progress, window)
+    else:  # whole episodes from another reader
         pieces = ((name, episode, report, True, True)
                   for name, episode, report in reader(paths, job.spec, job.vocabulary, progress, window))
     if isinstance(job.library, LiteralLibrary):  # its parse takes whole episodes
@@ -294,13 +296,13 @@ def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: Learn
 
 def _whole(pieces):
     """Pieces joined back into whole episodes."""
-    from slearn.io.serialize import _joined
+    from slearn.io.serialize import joined
 
     parts = []
     for name, piece, report, _, last in pieces:
         parts.append(piece)
         if last:
-            yield name, _joined(parts), report
+            yield name, joined(parts), report
             parts = []
 
 
