@@ -229,3 +229,14 @@ def test_without_ray_workers_say_what_to_install(monkeypatch, tmp_path):
     assert result.exit_code == 1
     assert result.output.strip().splitlines()[-1] == (
         "slearn: error: --workers and --ray need Ray, which is not installed: pip install 'slearn[ray]'")
+
+
+def test_the_tasks_hash_the_logs_they_read_not_the_driver(local_ray, logs, tmp_path, monkeypatch):
+    learn_files(logs["pointer"][:2], tmp_path / "one.parquet")
+    import slearn.jobs.learn as learn_module
+
+    def no_hashing(path):
+        raise AssertionError(f"the driver hashed {path}")
+    monkeypatch.setattr(learn_module, "log_record", no_hashing)
+    learn_files(logs["pointer"][:2], tmp_path / "many.parquet", reader=RayReader(local_ray))
+    assert (tmp_path / "many.parquet").read_bytes() == (tmp_path / "one.parquet").read_bytes()

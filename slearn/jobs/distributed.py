@@ -39,6 +39,7 @@ import numpy as np
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, SpecError, TruncatedLogWarning
+from slearn.io.bags import log_record
 from slearn.io.mcap_read import ReadReport
 from slearn.io.serialize import RangeCounts, joined, prepare_vocabulary
 from slearn.io.slicing import TimeSlice, slice_from_dict
@@ -65,6 +66,8 @@ class RayReader:
     def __init__(self, ray, echo: Callable[[str], None] | None = None, what: str = "read",
                  piece_events: int = STREAMED_EVENTS) -> None:
         self.ray, self.echo, self.what, self.piece_events = ray, echo, what, piece_events
+        self.records: dict[str, dict] = {}
+        """Each log read: its provenance record (size and sha256, computed by its task)."""
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.in_flight = max(IN_FLIGHT_PER_CPU * cpus, 2)
 
@@ -104,6 +107,7 @@ class RayReader:
                         warnings.warn(TruncatedLogWarning(report.describe()), stacklevel=2)
                     yield (*held[:2], report, *held[3:])
                     rate.add(item["events"])
+                    self.records[path] = item["record"]
                     _warn_once(item["warnings"], shown)
                     break
                 if held is not None:
@@ -168,7 +172,9 @@ def read_log(path: str, spec: dict, source: str, window: dict | None,
     ``symbols``, ``offsets`` (of the steps), ``n_actions`` (per step), ``first``, ``last``
     (the piece begins or ends its episode) and ``names`` (the ``(channel, value)`` of the
     symbols the vocabulary gained since the previous piece); then one dict that ends the
-    log: ``report`` (the read report's fields), ``warnings`` and ``events``."""
+    log: ``report`` (the read report's fields), ``warnings``, ``events`` and ``record`` (the
+    log's provenance record, :func:`slearn.io.bags.log_record`: hashing every input is
+    work the driver would otherwise do alone)."""
     from slearn.io.ingest import iter_pieces
 
     small_pages()
@@ -186,4 +192,5 @@ def read_log(path: str, spec: dict, source: str, window: dict | None,
                    "names": vocabulary.names(named)}
             named, events = len(vocabulary), events + len(episode.symbols)
         messages = [str(w.message) for w in caught if issubclass(w.category, DataWarning)]
-    yield {"report": dataclasses.asdict(report), "events": events, "warnings": messages + ranges.messages(log_spec)}
+    yield {"report": dataclasses.asdict(report), "events": events, "warnings": messages + ranges.messages(log_spec),
+           "record": log_record(path)}

@@ -251,7 +251,9 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
     if not result.n_steps and result.truncated:
         raise InputError(f"nothing could be salvaged, so nothing was written: "
                          f"{result.truncated[0].describe()}")
-    provenance = build_provenance(paths, job.provenance, window)
+    records = getattr(reader, "records", {})  # computed where the logs were read
+    provenance = build_provenance(paths, job.provenance, window,
+                                  [records[p] for p in paths] if all(p in records for p in paths) else None)
     for message in repeated_inputs(provenance["inputs"]):
         warnings.warn(DataWarning(message), stacklevel=2)
     saved = save_library(output, job.library, job.vocabulary, spec=job.spec, params=job.params,
