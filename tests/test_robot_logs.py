@@ -241,6 +241,21 @@ def test_the_pr2_log_lists_every_joint_and_splits_honestly(tmp_path):
     assert hi - lo > 0.1  # a few dozen events cannot pin an accuracy down
 
 
+@pytest.mark.shared
+def test_pr2_joints_held_out_past_their_training_values_are_held_not_abstained(tmp_path):
+    """With the suggested spec, the PR2 casters' held-out readings fall in bins training
+    never met: no pattern can speak, and each view holds its reading (persistence's
+    figure) where it abstained on every event before."""
+    spec, library = tmp_path / "spec.toml", tmp_path / "pr2.parquet"
+    assert invoke("info", PR2_LOG, "--suggest-spec", spec).exit_code == 0
+    assert invoke("learn", PR2_LOG, "--spec", spec, "--split", "0.7", "-o", library, "-q").exit_code == 0
+    doc = json.loads(invoke("replay", library, PR2_LOG, "--split", "0.7", "--json", "-q").stdout)
+    casters = [c for c in doc["channels"] if "caster" in c["channel"]]
+    assert len(casters) == 2 and all(c["markov_accuracy"] == 0 for c in casters)  # values never learned
+    for channel in casters:
+        assert channel["abstained"] == 0 and channel["accuracy"] == channel["persistence_accuracy"] > 0.99
+
+
 def write_ros2_log(path: Path, messages) -> Path:
     """A ROS 2 MCAP file with a metadata record and an attachment, as a recorder might leave."""
     with open(path, "wb") as f:

@@ -224,7 +224,7 @@ class PatternLibrary:
         if new_episode:
             views.restart(state)
         run = Run(self.has_actions, self.empty_action, self.empty_observation,
-                  self._entry_bound(), learn, record, baselines, new_episode)
+                  self._entry_bound(), learn, record, baselines, new_episode, self.factored)
         step = 0
         while step < len(codes):
             step = run_codes(self.tree, self.mixer, state, codes.action, codes.offsets, codes.view,

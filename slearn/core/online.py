@@ -50,6 +50,13 @@ class Reports(NamedTuple):
     ``frequency`` (the most frequent outcome after the view's last observation and the
     action, or after the last observation alone in a stream without actions) and
     ``persistence`` (the last observation again).
+
+    A report whose view found no context with outcomes (a reading or a command the library
+    never met with what came before) abstains, unless ``Run.hold``: then it predicts the
+    view's last observation again (``kind`` :data:`HOLD`, ``length`` 0, no share). A
+    channel of a spec is sampled and held between its events, so when no pattern of the
+    present was ever seen, the reading held is the one thing known; a plain sequence has
+    no held reading, and abstains.
     """
 
     predicted: np.ndarray  # int32
@@ -73,6 +80,12 @@ def new_reports(n: int, top_k: int) -> Reports:
                    np.full(n, -1, np.int32), np.full(n, -1, np.int32))
 
 
+HOLD = N_KINDS
+"""The ``kind`` of a report that holds the view's last observation (no expert spoke)."""
+REPORT_KINDS = ("frequent", "recent", "fresh", "hold")
+"""Names of a report's ``kind``: the experts of :mod:`slearn.core.mixer`, then :data:`HOLD`."""
+
+
 class Run(NamedTuple):
     """Scalars of one kernel call."""
 
@@ -84,6 +97,7 @@ class Run(NamedTuple):
     record: bool
     baselines: bool = False
     episode_start: bool = True  # step 0 of the codes is the first step of an episode
+    hold: bool = False  # with no context found, predict the view's last observation again
 
 
 @kernel
@@ -146,6 +160,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     k_sel, kind = select(weights, v, cand, m)
                     record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
                                       count, fresh, last_seen, outcome, nodes, m, ranked)
+                elif run.record and run.hold and held[v] >= 0:
+                    record_hold(out, r, held[v])
                 if learn:
                     update(weights, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
@@ -230,6 +246,15 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
         if filled >= top.shape[1]:
             break
         filled = _rank_into(top, top_p, r, filled, first, nodes[k], nxt, count, last_seen, outcome, ranked)
+
+
+@helper
+def record_hold(out, r, said):
+    """Store report ``r`` as a hold of observation ``said`` (see :class:`Reports`)."""
+    out.predicted[r] = said
+    out.length[r] = 0
+    out.kind[r] = HOLD
+    out.top[r, 0] = said
 
 
 @helper

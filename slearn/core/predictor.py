@@ -25,8 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from slearn.core.mixer import KINDS
-from slearn.core.online import Reports, new_reports
+from slearn.core.online import REPORT_KINDS, Reports, new_reports
 from slearn.core.queries import (
     Buffers,
     forget,
@@ -52,7 +51,9 @@ class ViewPrediction:
         observations: the predicted observation symbols, ``None`` when abstaining.
         score: the chosen context's share behind the prediction.
         length: the chosen context's length in tokens (-1 when abstaining).
-        kind: which expert spoke (``frequent``, ``recent``, ``fresh``; ``""`` abstaining).
+        kind: which expert spoke (``frequent``, ``recent``, ``fresh``), or ``hold`` when no
+            context of the present was ever seen and a spec's channel holds its last reading
+            (no share); ``""`` abstaining.
         ranked: ``(observations, share)`` best first.
     """
 
@@ -91,7 +92,7 @@ class BatchPrediction(NamedTuple):
     """Many queries' predictions as arrays, query ``i`` and view ``v`` at ``[i, v]``.
 
     ``token`` is the predicted observation token (-1: abstained), ``score``, ``length`` and
-    ``kind`` as in :class:`ViewPrediction` (``kind`` indexes ``slearn.core.mixer.KINDS``, -1),
+    ``kind`` as in :class:`ViewPrediction` (``kind`` indexes ``slearn.core.online.REPORT_KINDS``, -1),
     ``top``/``top_p`` the ranked tokens (-1 padded) and their shares. A token's symbols are
     ``library.tokens.symbols(token)``; :meth:`Predictor.prediction` gives one query as a
     :class:`Prediction`.
@@ -165,7 +166,10 @@ class Predictor:
     def predict_unknown(self, steps: list[Step], unknown_views: np.ndarray | None = None) -> Prediction:
         """Predict the observations of the last step of ``steps`` (its observations are
         ignored). Symbols past the vocabulary are values never seen; ``unknown_views``
-        gives the view of each (factored libraries)."""
+        gives the view of each (factored libraries). A view whose context was never seen
+        holds its last reading (kind ``hold``), unless that reading is such a value: the
+        library has no token to say it with, and the view abstains (replay, which gives
+        held-out values tokens of their own, holds them)."""
         if self.library.clock == 0 or not self.library.view_names:
             return self._silent()
         if getattr(self.library, "streams", None) is None:
@@ -287,7 +291,7 @@ class Predictor:
             if t < 0:
                 views.append(_view_prediction(v, names[v], None, 0.0, -1, "", ()))
             else:
-                views.append(_view_prediction(v, names[v], symbols(t), share, n, KINDS[k],
+                views.append(_view_prediction(v, names[v], symbols(t), share, n, REPORT_KINDS[k],
                                               tuple([(symbols(x), p) for x, p in zip(ranked, shares) if x >= 0])))
         return _prediction(tuple(views))
 
@@ -311,7 +315,7 @@ class Predictor:
                     continue
                 out.predicted[r] = table.find(OBSERVATION, view.observations)
                 out.score[r], out.length[r] = view.score, view.length
-                out.kind[r] = KINDS.index(view.kind)
+                out.kind[r] = REPORT_KINDS.index(view.kind)
                 for j, (symbols, share) in enumerate(view.ranked[:k]):
                     out.top[r, j], out.top_p[r, j] = table.find(OBSERVATION, symbols), share
         return _batch(out, len(ends), n_views, k)

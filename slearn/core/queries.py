@@ -19,7 +19,7 @@ from slearn.core._jit import helper, kernel
 from slearn.core.addresses import address_table, cube, matrix, vector
 from slearn.core.context_tree import Tree, child
 from slearn.core.mixer import N_KINDS, Mixer, select
-from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_prediction
+from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_hold, record_prediction
 from slearn.core.views import NO_TOKEN, UNKNOWN, ViewState, new_view_state
 
 
@@ -59,10 +59,11 @@ def forget(memo: Memo) -> None:
 
 class Query(NamedTuple):
     """What a query run asks: the run's scalars (``has_actions``, ``empty_action``,
-    ``empty_observation``), then either a single query's flat codes (see
-    ``Predictor._codes_of``) or encoded steps and each query's bounds."""
+    ``empty_observation``, ``hold``: see :class:`slearn.core.online.Reports`), then either a
+    single query's flat codes (see ``Predictor._codes_of``) or encoded steps and each
+    query's bounds."""
 
-    run: np.ndarray      # int32[3]
+    run: np.ndarray      # int32[4]
     flat: np.ndarray     # int32
     action: np.ndarray   # int32 per step
     offsets: np.ndarray  # int64 per step + 1
@@ -108,7 +109,8 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     query and view), within ``MEMO_BYTES`` (``memo_slots``)."""
     n_views = len(library.view_names)
     n = queries * n_views
-    run = np.array([library.has_actions, library.empty_action, library.empty_observation], np.int32)
+    run = np.array([library.has_actions, library.empty_action, library.empty_observation, library.factored],
+                   np.int32)
     top_k = max(top_k, 1)
     slots = memo_slots(n if slots is None else slots, library.max_context, top_k)
     return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
@@ -196,7 +198,7 @@ def predict_queries(table, n_flat, reused):
     size = len(memo_depth)
     qa = _QUERY_AT
     run = vector(table, qa, i32)
-    has_actions, empty_action, empty_observation = run[0] != 0, run[1], run[2]
+    has_actions, empty_action, empty_observation, hold = run[0] != 0, run[1], run[2], run[3] != 0
     action, offsets, view, token = vector(table, qa + 2, i32), vector(table, qa + 3, i64), \
         vector(table, qa + 4, i32), vector(table, qa + 5, i32)
     starts, ends = vector(table, qa + 6, i64), vector(table, qa + 7, i64)
@@ -265,6 +267,10 @@ def predict_queries(table, n_flat, reused):
                         elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
                             record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], UNKNOWN,
                                               first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
+                elif hold and held[v] >= 0:  # (not remembered: the window's slot is given up)
+                    record_hold(out, r, held[v])
+                    memo_depth[slot] = -1
+                    continue
             # (the copies are written out: a helper's call with a dozen arrays cost a tenth of a batch)
             if recalled >= 0:
                 out.predicted[r], out.length[r], out.kind[r] = memo_said[recalled], memo_length[recalled], \
