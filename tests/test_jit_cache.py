@@ -128,3 +128,60 @@ def test_a_helper_compiles_once_for_literal_and_narrow_arguments():
 
     assert calls(np.array([5, 7], np.int32)) == 5 + 6 + 9
     assert add.signatures == [(_jit.types.int64, _jit.types.int64)]
+
+
+import ast  # noqa: E402
+
+
+def _decorator(node) -> str:
+    """``helper``, ``helper-python`` (``@helper(python=True)``), ``kernel`` or ""."""
+    if isinstance(node, ast.Call):
+        python = any(k.arg == "python" and getattr(k.value, "value", False) for k in node.keywords)
+        return "helper-python" if getattr(node.func, "id", "") == "helper" and python else ""
+    return getattr(node, "id", "") if getattr(node, "id", "") in ("helper", "kernel") else ""
+
+
+def test_helpers_called_from_python_are_the_ones_marked_so():
+    """Helpers get no wrapper for calls from Python (about a sixth of a cold demo's
+    compile): a helper that Python calls must say so, or the call would crash the
+    process. Parsed, so it fails before anything runs: every helper called from a function
+    that is not compiled (by its name in its own module, by a name imported from its
+    module, or as ``module.name``) is ``@helper(python=True)``, and every one so marked is."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    parsed = {}
+    for folder, package in (("slearn", "slearn"), ("replay", "slearn.replay"), ("recorders", "slearn.recorders")):
+        for path in (root / folder).rglob("*.py"):
+            parts = path.relative_to(root / folder).with_suffix("").parts
+            parsed[".".join((package, *parts))] = ast.parse(path.read_text())
+    kinds = {(module, n.name): _decorator(d) for module, tree in parsed.items() for n in tree.body
+             if isinstance(n, ast.FunctionDef) for d in n.decorator_list if _decorator(d)}
+    called = set()
+    for module, tree in parsed.items():
+        names = {n.name: (module, n.name) for n in tree.body if isinstance(n, ast.FunctionDef)}
+        modules = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                for alias in node.names:
+                    names[alias.asname or alias.name] = (node.module, alias.name)
+                    modules[alias.asname or alias.name] = f"{node.module}.{alias.name}"
+        for function in ast.walk(tree):
+            if not isinstance(function, ast.FunctionDef) or any(_decorator(d) for d in function.decorator_list):
+                continue
+            for call in ast.walk(function):
+                if not isinstance(call, ast.Call):
+                    continue
+                f = call.func
+                if isinstance(f, ast.Name):
+                    target = names.get(f.id)
+                elif isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in modules:
+                    target = (modules[f.value.id], f.attr)
+                else:
+                    continue
+                if kinds.get(target, "").startswith("helper"):
+                    called.add(target)
+    marked = {key for key, kind in kinds.items() if kind == "helper-python"}
+    assert len(kinds) > 50 and len(marked) >= 5
+    assert called - marked == set(), "called from Python without a wrapper"
+    assert marked - called == set(), "marked for Python, but Python does not call it"

@@ -45,10 +45,20 @@ def kernel(function):
         return _plain_calls(numba.njit(cache=True)(function))
 
 
-def helper(function):
-    """Compile ``function`` as a cached per-step helper: no reference counting, no allocation."""
+def helper(function=None, *, python: bool = False):
+    """Compile ``function`` as a cached per-step helper: no reference counting, no allocation.
+
+    A helper is called from compiled code only, so numba builds no wrapper to call it from
+    Python (a third of a small function's compile time); ``@helper(python=True)`` for one
+    that Python calls too (a call from Python without the wrapper would crash).
+    """
+    if function is None:
+        return lambda f: helper(f, python=python)
+    options: dict[str, Any] = {"cache": True, "_nrt": False}
+    if not python:
+        options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
     with _slearn_cache():
-        return _plain_calls(numba.njit(cache=True, _nrt=False)(function))
+        return _plain_calls(numba.njit(**options)(function))
 
 
 def _plain_calls(dispatcher):

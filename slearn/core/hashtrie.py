@@ -83,7 +83,7 @@ def child_or_add(trie, node, tok):
     return new
 
 
-@helper
+@helper(python=True)
 def path_tokens(trie, node, out):
     """Write the tokens from the root to ``node`` into ``out``; return their number."""
     depth = 0

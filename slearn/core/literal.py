@@ -330,7 +330,7 @@ def _anchor(trie, obs_token):
     return child_or_add(trie, 0, obs_token)
 
 
-@helper
+@helper(python=True)
 def _touch(trie, count, last_seen, index, use_index, node, clock, buf):
     count[node] += 1
     last_seen[node] = clock
@@ -339,7 +339,7 @@ def _touch(trie, count, last_seen, index, use_index, node, clock, buf):
         context_index.add_pattern(index, buf, length, 1, clock)
 
 
-@helper
+@helper(python=True)
 def learn_step(trie, count, last_seen, index, use_index, n_patterns, state, a_tok, o_tok,
                clock, max_len, buf):
     """Learn one step ``(a_tok, o_tok)``; ``state`` holds the match node and its length."""
@@ -374,7 +374,7 @@ def learn_step(trie, count, last_seen, index, use_index, n_patterns, state, a_to
         state[1] = 0
 
 
-@helper
+@helper(python=True)
 def has_room(trie, index, use_index, n_patterns, max_len, max_patterns):
     """Whether one more step can be learned without growing or forgetting."""
     if len(trie.parent) - trie.size[0] < _TRIE_MARGIN or n_patterns[0] >= max_patterns:

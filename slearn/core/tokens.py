@@ -116,7 +116,7 @@ class TokenTable:
         return table
 
 
-@helper
+@helper(python=True)
 def _hash(kind, values, start, end):
     h = _FNV_BASIS ^ np.uint64(kind + 1)
     for i in range(start, end):
@@ -125,7 +125,7 @@ def _hash(kind, values, start, end):
     return np.int64(h >> np.uint64(1))
 
 
-@helper
+@helper(python=True)
 def _find(a, kind, values, start, end, h):
     mask = len(a.slots) - 1
     s = h & mask
@@ -163,7 +163,7 @@ def _place(a, t):
     a.slots[s] = t
 
 
-@helper
+@helper(python=True)
 def _intern(a, kind, values, start, end):
     h = _hash(kind, values, start, end)
     t = _find(a, kind, values, start, end, h)
