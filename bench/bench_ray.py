@@ -37,6 +37,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -89,9 +91,6 @@ print(time.perf_counter() - started)
 def ceiling_round(folder: Path, logs: list[str]) -> float:
     """What two cores give two independent processes of this job, once:
     ``2 x (one process alone) / (the slower of two at once)``."""
-    import subprocess
-    import sys
-
     def start(name: str, paths: list[str]):
         return subprocess.Popen([sys.executable, "-c", _ALONE, str(folder / name), *paths],
                                 stdout=subprocess.PIPE, text=True)

@@ -202,7 +202,7 @@ def test_a_reading_never_seen_is_held_and_right_while_it_stays():
     library = PatternLibrary(max_length=2, vocabulary=vocabulary)
     library.learn(episode(3000))
     held_out_episode = episode(400, strange=range(100, 110))
-    result = evaluate(library, held_out(held_out_episode), vocabulary, keep_outcomes=True)
+    result = evaluate(library, held_out(held_out_episode), vocabulary)
     channels = {c["channel"]: c for c in result.channels.to_list()}
     assert channels["a"]["abstained"] == channels["b"]["abstained"] == 0
     assert channels["a"]["accuracy"] > 0.99

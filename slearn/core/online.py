@@ -32,7 +32,7 @@ from slearn.core.context_tree import (
     ranks_above,
     refresh,
 )
-from slearn.core.mixer import FREQUENT, FRESH, N_KINDS, RECENT, detect, select, trusted_length, update
+from slearn.core.mixer import FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core.views import NO_TOKEN
 
 
@@ -82,7 +82,7 @@ def new_reports(n: int, top_k: int) -> Reports:
 
 HOLD = N_KINDS
 """The ``kind`` of a report that holds the view's last observation (no expert spoke)."""
-REPORT_KINDS = ("frequent", "recent", "fresh", "hold")
+REPORT_KINDS = (*KINDS, "hold")
 """Names of a report's ``kind``: the experts of :mod:`slearn.core.mixer`, then :data:`HOLD`."""
 
 

@@ -173,10 +173,8 @@ def streamed(ray, stream, name: str) -> Iterator[Any]:
     try:
         for ref in stream:
             yield _get(ray, ref, name)
-    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
-            ray.exceptions.ObjectLostError) as err:  # iterating found the task dead
-        raise ClusterError(f"{name}: a Ray worker died {MAX_RETRIES + 1} times on this task "
-                           f"({type(err).__name__}); see the Ray logs (/tmp/ray/session_latest/logs)") from None
+    except _died(ray) as err:  # iterating found the task dead
+        raise _worker_died(name, err) from None
 
 
 def _get(ray, ref, name: str):
@@ -186,10 +184,18 @@ def _get(ray, ref, name: str):
         if isinstance(err.cause, SlearnError):
             raise err.cause from None
         raise
-    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
-            ray.exceptions.ObjectLostError) as err:
-        raise ClusterError(f"{name}: a Ray worker died {MAX_RETRIES + 1} times on this task "
-                           f"({type(err).__name__}); see the Ray logs (/tmp/ray/session_latest/logs)") from None
+    except _died(ray) as err:
+        raise _worker_died(name, err) from None
+
+
+def _died(ray) -> tuple:
+    """Ray's errors for a task whose worker (or node, or result) was lost for good."""
+    return ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.ObjectLostError
+
+
+def _worker_died(name: str, err: BaseException) -> ClusterError:
+    return ClusterError(f"{name}: a Ray worker died {MAX_RETRIES + 1} times on this task "
+                        f"({type(err).__name__}); see the Ray logs (/tmp/ray/session_latest/logs)")
 
 
 class Rate:

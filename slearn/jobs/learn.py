@@ -23,7 +23,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Callable, Iterator, Sequence, cast
+from typing import Any, Callable, Iterator, Sequence, cast
 
 from slearn import __version__
 from slearn.core import literal
@@ -203,7 +203,7 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
                 max_length: int | None = None, max_patterns: int | None = None,
                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
                 on_episode: Callable[[LearnResult, str], None] | None = None,
-                window: TimeSlice | None = None, reader: Callable = read_episodes) -> LearnResult:
+                window: TimeSlice | None = None, reader: Any = read_episodes) -> LearnResult:
     """Learn the episodes of each log and save the library to ``output`` (atomically).
 
     Args:
@@ -221,8 +221,9 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
         on_episode: called after each episode is learned with the running result
             (episodes, steps, events so far) and the episode's name.
         window: learn only this slice of each log's time (recorded in the provenance).
-        reader: reads the logs into episodes, as :func:`~slearn.io.serialize.read_episodes`
-            (:class:`slearn.jobs.distributed.RayReader` reads them on Ray).
+        reader: :func:`~slearn.io.serialize.read_episodes` (read here), or a reader with a
+            ``pieces`` method as :func:`~slearn.io.serialize.read_pieces` (the logs' episodes
+            in pieces: :class:`slearn.jobs.distributed.RayReader` reads them on Ray).
 
     Warnings (:class:`~slearn.errors.DataWarning`): a spec without an action channel,
     values outside an entry's ``range``.
@@ -266,16 +267,13 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
 
 def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
-                    window: TimeSlice | None, reader: Callable = read_episodes) -> None:
+                    window: TimeSlice | None, reader: Any = read_episodes) -> None:
     if job.pieces is not None:  # read already (quantile bins fitted in the same read)
         pieces = job.pieces
     elif reader is read_episodes:  # read here, in pieces
         pieces = read_pieces(paths, job.spec, job.vocabulary, progress, window)
-    elif hasattr(reader, "pieces"):  # read elsewhere, in pieces (Ray)
+    else:  # read elsewhere, in pieces (Ray)
         pieces = reader.pieces(paths, job.spec, job.vocabulary, progress, window)
-    else:  # whole episodes from another reader
-        pieces = ((name, episode, report, True, True)
-                  for name, episode, report in reader(paths, job.spec, job.vocabulary, progress, window))
     if isinstance(job.library, LiteralLibrary):  # its parse takes whole episodes
         pieces = ((name, episode, report, True, True)
                   for name, episode, report in _whole(pieces))
