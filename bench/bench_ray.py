@@ -221,14 +221,15 @@ def main() -> None:
           f"{m['workers']} workers")
     print(f"one process        {m['one_process_s']:7.2f} s  ({m['per_log_s']:.2f} s per log; "
           f"reading {m['read_s']:.2f} s of it)")
-    print(f"Ray start-up       {m['ray_start_s']:7.2f} s, then {m['workers_start_s']:.2f} s for the workers' first "
-          f"tasks ({2 * m['workers']} logs of 2,000 trials: each worker imports slearn and loads its kernels)")
+    print(f"Ray start-up       {m['ray_start_s']:7.2f} s, then {m['workers_start_s']:.2f} s for "
+          f"the first --workers run "
+          f"({2 * m['workers']} logs of 2,000 trials: each worker imports slearn and loads its kernels)")
     print(f"--workers          {m['ray_s']:7.2f} s  best against best {m['speedup']:.2f}x "
           f"({m['speedup_with_start']:.2f}x with start-up); byte-identical: {m['identical']}")
     print(f"  {len(m['one_runs_s'])} alternated pairs: median speed-up {m['speedup_median_pair']:.2f}x; "
           f"per pair " + ", ".join(f"{o:.2f}/{r:.2f} s = {o / r:.2f}x"
                                     for o, r in zip(m["one_runs_s"], m["ray_runs_s"])))
-    print(f"machine's ceiling  {m['ceiling']:.2f}x for two independent processes of the same job (rounds "
+    print(f"machine's ceiling  {m['ceiling']:.2f}x for two independent processes of half the job each (rounds "
           + ", ".join(f"{c:.2f}x" for c in m["ceiling_rounds"])
           + f"): --workers reaches {100 * m['efficiency']:.0f} % of it")
     print(f"  saving the library takes {m['save_s']:.2f} s, serial in any run: the bound for --workers "

@@ -3,6 +3,7 @@ while slearn decorates, and pruned."""
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import subprocess
@@ -129,8 +130,6 @@ def test_a_helper_compiles_once_for_literal_and_narrow_arguments():
     assert calls(np.array([5, 7], np.int32)) == 5 + 6 + 9
     assert add.signatures == [(_jit.types.int64, _jit.types.int64)]
 
-
-import ast  # noqa: E402
 
 
 def _decorator(node) -> str:

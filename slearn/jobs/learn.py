@@ -23,7 +23,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any, Callable, Iterator, Sequence, cast
+from typing import Callable, Iterator, Protocol, Sequence, cast
 
 from slearn import __version__
 from slearn.core import literal
@@ -44,6 +44,14 @@ from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
 SCORING_RULES = ("adaptive", "literal")
 DEFAULT_SCORING = "adaptive"
 _SNIFF_MESSAGES = 1000  # messages read to find the topics of a log without a summary
+
+
+class PieceReader(Protocol):
+    """A reader of logs elsewhere (:class:`slearn.jobs.distributed.RayReader`): its
+    ``pieces`` yields what :func:`~slearn.io.serialize.read_pieces` yields."""
+
+    def pieces(self, paths: Sequence[str | os.PathLike], spec: Spec, vocabulary: Vocabulary,
+               progress: bool, window: TimeSlice | None) -> Iterator[tuple]: ...
 
 
 @dataclass
@@ -203,7 +211,7 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
                 max_length: int | None = None, max_patterns: int | None = None,
                 scoring: str | None = None, overwrite: bool = False, progress: bool = False,
                 on_episode: Callable[[LearnResult, str], None] | None = None,
-                window: TimeSlice | None = None, reader: Any = read_episodes) -> LearnResult:
+                window: TimeSlice | None = None, reader: Callable | PieceReader = read_episodes) -> LearnResult:
     """Learn the episodes of each log and save the library to ``output`` (atomically).
 
     Args:
@@ -267,13 +275,13 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
 
 def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: LearnResult, progress: bool,
                     on_episode: Callable[[LearnResult, str], None] | None,
-                    window: TimeSlice | None, reader: Any = read_episodes) -> None:
+                    window: TimeSlice | None, reader: Callable | PieceReader = read_episodes) -> None:
     if job.pieces is not None:  # read already (quantile bins fitted in the same read)
         pieces = job.pieces
     elif reader is read_episodes:  # read here, in pieces
         pieces = read_pieces(paths, job.spec, job.vocabulary, progress, window)
     else:  # read elsewhere, in pieces (Ray)
-        pieces = reader.pieces(paths, job.spec, job.vocabulary, progress, window)
+        pieces = cast(PieceReader, reader).pieces(paths, job.spec, job.vocabulary, progress, window)
     if isinstance(job.library, LiteralLibrary):  # its parse takes whole episodes
         pieces = ((name, episode, report, True, True)
                   for name, episode, report in _whole(pieces))
