@@ -112,7 +112,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
     weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
     recent, filled, held, root = views.recent, views.filled, views.held, views.root
-    K = recent.shape[1]
+    K = weights.shape[1]  # the longest context, in tokens
+    M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
@@ -129,7 +130,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                                            or not run.episode_start)
         if push_action:
             for v in range(n_views):
-                recent[v, filled[v] % K] = a
+                recent[v, filled[v] & M] = a
                 filled[v] += 1
         for r in range(r0, r1):
             v, x = view[r], token[r]
@@ -140,7 +141,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                 ep = epoch[v]
                 node, n = root[v], 0
                 for k in range(1, depth + 1):
-                    t = recent[v, (filled[v] - k) % K]
+                    t = recent[v, (filled[v] - k) & M]
                     node = child_or_add(node_slots, parent, tok_of, first, best, newest, fresh_best, node_epoch,
                                         size, node, t) if learn \
                         else child(node_slots, parent, tok_of, node, t)
@@ -178,7 +179,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                         refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
                         e = entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size, nd, x)
                         credit(count, last_seen, fresh, best, newest, fresh_best, e, nd, clock[0])
-            recent[v, filled[v] % K] = x
+            recent[v, filled[v] & M] = x
             filled[v] += 1
             held[v] = x
         if push_action:
@@ -211,13 +212,13 @@ def candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, e
 @helper
 def hold_silent(recent, filled, held, view, r0, r1, empty_observation):
     """Views that did not report after an action show their last observation again."""
-    K = recent.shape[1]
+    M = recent.shape[1] - 1
     r = r0
     for v in range(len(filled)):
         if r < r1 and view[r] == v:
             r += 1
             continue
-        recent[v, filled[v] % K] = held[v] if held[v] != NO_TOKEN else empty_observation
+        recent[v, filled[v] & M] = held[v] if held[v] != NO_TOKEN else empty_observation
         filled[v] += 1
 
 

@@ -184,7 +184,8 @@ def predict_queries(table, n_flat, reused):
     outcome, count, last_seen, fresh, nxt = tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next
     weights, epoch = mixer.weight, mixer.epoch
     recent, filled, held, root = scratch.recent, scratch.filled, scratch.held, scratch.root
-    K = recent.shape[1]
+    K = weights.shape[1]  # the longest context, in tokens
+    M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
@@ -215,12 +216,12 @@ def predict_queries(table, n_flat, reused):
             push_action = has_actions and (step > s or a != empty_action)
             if push_action:
                 for v in range(n_views):
-                    recent[v, filled[v] % K] = a
+                    recent[v, filled[v] & M] = a
                     filled[v] += 1
             first_obs, end_obs = offsets[step], offsets[step + 1]
             for r in range(first_obs, end_obs):
                 v = view[r]
-                recent[v, filled[v] % K] = token[r]
+                recent[v, filled[v] & M] = token[r]
                 filled[v] += 1
                 held[v] = token[r]
             if push_action and end_obs - first_obs < n_views:  # a view was silent (views are distinct)
@@ -231,7 +232,7 @@ def predict_queries(table, n_flat, reused):
         a = action[e]
         if has_actions and (e > s or a != empty_action):
             for v in range(n_views):
-                recent[v, filled[v] % K] = a
+                recent[v, filled[v] & M] = a
                 filled[v] += 1
         for v in range(n_views):
             depth = min(filled[v], K)
@@ -246,7 +247,7 @@ def predict_queries(table, n_flat, reused):
             else:
                 node, n = root[v], 0
                 for k in range(1, depth + 1):
-                    node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) % K])
+                    node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) & M])
                     if node < 0:
                         break
                     nodes[k] = node
@@ -291,12 +292,12 @@ def predict_queries(table, n_flat, reused):
 @helper
 def _window_slot(recent, filled, v, depth, size):
     """The memo slot of view ``v``'s last ``depth`` tokens (``size`` a power of two)."""
-    K = recent.shape[1]
+    M = recent.shape[1] - 1
     h = np.int64(v) * 1000003 + depth
-    at = (filled[v] - 1) % K  # the newest token, then back (no division per token)
+    at = filled[v] - 1  # the newest token, then back
     for _ in range(depth):
-        h = h * 1000003 + recent[v, at]
-        at = at - 1 if at > 0 else K - 1
+        h = h * 1000003 + recent[v, at & M]
+        at -= 1
     return (h ^ (h >> 29)) & (size - 1)
 
 
@@ -304,14 +305,15 @@ def _window_slot(recent, filled, v, depth, size):
 def _claim_window(recent, filled, v, depth, memo_depth, memo_window, slot):
     """Whether ``slot`` holds view ``v``'s last ``depth`` tokens; if not, it does from now
     on (the caller then stores the answer in its row)."""
-    K = recent.shape[1]
+    M = recent.shape[1] - 1
     same = memo_depth[slot] == depth and memo_window[slot, 0] == v
-    at = (filled[v] - 1) % K
+    at = filled[v] - 1
     for k in range(1, depth + 1):
-        if same and memo_window[slot, k] != recent[v, at]:
+        t = recent[v, at & M]
+        if same and memo_window[slot, k] != t:
             same = False
-        memo_window[slot, k] = recent[v, at]
-        at = at - 1 if at > 0 else K - 1
+        memo_window[slot, k] = t
+        at -= 1
     memo_depth[slot] = depth
     memo_window[slot, 0] = v
     return same
