@@ -9,6 +9,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from slearn.core.library import PatternLibrary
+from slearn.core.mixer import FRESH
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
@@ -77,6 +78,31 @@ def test_factored_library_batch_equals_the_step_loop(seed, joints):
     starts = np.maximum(0, ends - rng.integers(0, 12, 20))
     batch = assert_batch_matches(Predictor(library), held_out, starts, ends)
     assert batch.token.shape == (20, joints) and (batch.token >= 0).any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 5), st.sampled_from([1, 3, 4]))
+@example(105579, 2, 3)  # needs both the longer contexts' experts and their rankings
+def test_contexts_longer_than_the_leaders_are_skipped_only_when_they_cannot_speak(seed, max_length, top_k):
+    """A query looks up the contexts up to the longest holding an expert of top weight, and
+    longer ones only when their experts could outweigh the one chosen or the ranking needs
+    them: with expert weights drawn from a few values (ties, a leader of any length, experts
+    asleep, FRESH ones among them), every answer is still the full lookup's (library.run)."""
+    rng = np.random.default_rng(seed)
+    library = PatternLibrary(max_length=max_length)
+    library.learn(random_episode(rng, 200, observations=3))
+    library.mixer.epoch[:] += 1  # an alarm: FRESH experts sleep until their context is counted again
+    fresh_steps = int(rng.choice([0, 10, 100]))
+    if fresh_steps:
+        library.learn(random_episode(rng, fresh_steps, observations=3))
+    weight = library.mixer.weight  # ties everywhere, one top weight at a random length
+    weight[:] = rng.choice([0.0, 0.25, 0.5], weight.shape, p=[0.1, 0.3, 0.6])
+    lead = rng.integers(1, weight.shape[1] + 1)
+    weight[0, lead - 1, FRESH if rng.random() < 0.7 else rng.integers(0, 2)] = 1.0
+    held_out = random_episode(rng, 60, observations=3)
+    ends = rng.integers(0, len(held_out), 30)
+    starts = np.maximum(0, ends - rng.integers(0, 3 * max_length, 30))
+    assert_batch_matches(Predictor(library, top_k=top_k), held_out, starts, ends)
 
 
 def test_values_never_seen_match_the_step_loop():

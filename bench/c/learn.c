@@ -13,8 +13,10 @@
  * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
  *
  * Hash tables hold record ids; a record's key is (parent, token) for nodes and
- * (owner, outcome) for entries, hashed as slearn/core/hashtable.py does. Capacities are given
- * by the caller (no growth), so ids and every number match slearn's.
+ * (owner, outcome) for entries, found as slearn/core/hashtable.py finds them: an entry from
+ * the hash of its pair, a node from the hash of its path (slearn/core/context_tree.py).
+ * A view's ring of tokens is a power of two wide (slearn/core/views.py). Capacities are
+ * given by the caller (no growth), so ids and every number match slearn's.
  *
  * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm
  */
@@ -41,8 +43,16 @@ static int64_t home(int64_t a, int64_t b, int64_t n) {
     return (int64_t)((h * (uint64_t)n) >> 32);
 }
 
-static int32_t child_or_add(tree_t *t, int32_t node, int32_t tok) {
-    int64_t s = home(node, tok, t->node_slot_count);
+/* A node's path hash from its parent's (context_tree.path_hash and root_path). */
+static uint64_t path_hash(uint64_t h, int32_t tok) {
+    uint64_t x = (h ^ ((uint64_t)tok + 1)) * 0x9E3779B97F4A7C15ULL;
+    return x ^ (x >> 32);
+}
+
+static uint64_t root_path(int32_t root) { return path_hash(0x243F6A8885A308D3ULL, root); }
+
+static int32_t child_or_add(tree_t *t, int32_t node, int32_t tok, uint64_t h) {
+    int64_t s = (int64_t)(((h >> 32) * (uint64_t)t->node_slot_count) >> 32);
     for (;;) {
         int32_t r = t->node_slots[s];
         if (r == EMPTY) break;
@@ -171,21 +181,27 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                      const int32_t *action, const int64_t *offsets, const int32_t *view,
                      const int32_t *token, int64_t n_steps, int64_t clock, const params_t *p) {
     int K = p->K;
+    int W = 1;  /* the ring's width: the power of two at or above K */
+    while (W < K) W *= 2;
+    const int64_t M = W - 1;
     int32_t nodes[256];
     int32_t cand[257 * KINDS];
     for (int64_t step = 0; step < n_steps; step++) {
         int32_t a = action[step];
         int push_action = p->has_actions && (step > 0 || a != p->empty_action);
         if (push_action)
-            for (int v = 0; v < p->n_views; v++) recent[v * K + filled[v] % K] = a, filled[v]++;
+            for (int v = 0; v < p->n_views; v++) recent[v * W + (filled[v] & M)] = a, filled[v]++;
         for (int64_t r = offsets[step]; r < offsets[step + 1]; r++) {
             int32_t v = view[r], x = token[r];
             int depth = filled[v] < K ? (int)filled[v] : K;
             if (depth > 0) {
                 int32_t ep = epoch[v], node = root[v];
+                uint64_t h = root_path(node);
                 int n = 0, m = 0;
                 for (int k = 1; k <= depth; k++) {
-                    node = child_or_add(t, node, recent[v * K + (filled[v] - k) % K]);
+                    int32_t tok = recent[v * W + ((filled[v] - k) & M)];
+                    h = path_hash(h, tok);
+                    node = child_or_add(t, node, tok, h);
                     nodes[k] = node;
                     n = k;
                 }
@@ -216,7 +232,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                     credit(t, entry_or_add(t, nd, x), nd, clock);
                 }
             }
-            recent[v * K + filled[v] % K] = x;
+            recent[v * W + (filled[v] & M)] = x;
             filled[v]++;
             held[v] = x;
         }
@@ -224,7 +240,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
             int64_t r = offsets[step];
             for (int v = 0; v < p->n_views; v++) {
                 if (r < offsets[step + 1] && view[r] == v) { r++; continue; }
-                recent[v * K + filled[v] % K] = held[v] != -1 ? held[v] : p->empty_observation;
+                recent[v * W + (filled[v] & M)] = held[v] != -1 ? held[v] : p->empty_observation;
                 filled[v]++;
             }
         }

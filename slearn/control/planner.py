@@ -49,6 +49,7 @@ import numpy as np
 
 from slearn.core import context_tree, hashtrie
 from slearn.core._jit import helper, kernel
+from slearn.core.context_tree import path_hash, root_path
 from slearn.core.hashtrie import child, child_or_add
 from slearn.core.library import PatternLibrary
 from slearn.core.stream import Step
@@ -299,26 +300,30 @@ def _best_action(q: np.ndarray, reach: np.ndarray) -> int:
 
 
 @helper
-def _child(tree, node, tok):
-    return context_tree.child(tree.node_slots, tree.parent, tree.token, node, tok)
+def _child(tree, node, tok, h):
+    """The child of ``node`` along ``tok`` (``h``: its path hash), or -1."""
+    return context_tree.child(tree.node_slots, tree.parent, tree.token, node, tok, h)
 
 
 @helper
 def _contexts(tree, root, tokens, obs_pos, action, levels, cand):
     """Contexts that start at an observation, order 0 (no earlier step) first: the nodes of
     ``tokens[..obs_pos] + action`` read backwards at even depths."""
-    node = _child(tree, root, action)
+    h = path_hash(root_path(root), action)
+    node = _child(tree, root, action, h)
     n = 0
     i = obs_pos
     while node >= 0 and i >= 0 and n < levels:
-        node = _child(tree, node, tokens[i])
+        h = path_hash(h, tokens[i])
+        node = _child(tree, node, tokens[i], h)
         if node < 0 or tree.first[node] == -1:
             break
         cand[n] = node
         n += 1
         if i == 0:
             break
-        node = _child(tree, node, tokens[i - 1])
+        h = path_hash(h, tokens[i - 1])
+        node = _child(tree, node, tokens[i - 1], h)
         i -= 2
     return n
 
@@ -561,9 +566,10 @@ def _tried(tree, root, start, actions):
     for j in range(len(actions)):
         if actions[j] < 0:
             continue
-        node = _child(tree, root, actions[j])
+        h = path_hash(root_path(root), actions[j])
+        node = _child(tree, root, actions[j], h)
         if node >= 0:
-            node = _child(tree, node, start[len(start) - 1])
+            node = _child(tree, node, start[len(start) - 1], path_hash(h, start[len(start) - 1]))
         if node < 0:
             continue
         e = tree.first[node]

@@ -14,8 +14,13 @@ Per node, ``best`` (most occurrences, ties to the newest), ``newest`` (seen last
 counts only grow: the entry just counted is the newest, so it takes over on a tie.
 Fresh counts belong to the epoch written in the node and are reset lazily, when a node
 of an older epoch is next counted. Nodes and entries are found through
-:mod:`slearn.core.hashtable`. The arrays never move inside a compiled call: callers check
-:func:`room` and :func:`grow` between calls.
+:mod:`slearn.core.hashtable`; a node's slot follows from its *path hash*, a hash of its
+root and the tokens on the way to it (:func:`path_hash`), not from its parent's id, so the
+lookups of one prediction's contexts (depth 1, 2, ...) are computed from the tokens alone
+and run at the same time, where each waited for the node above it. Nodes are numbered
+after their parents (every way a tree is built adds a parent first), so a table is rebuilt
+in one pass (:func:`rebuild_nodes`). The arrays never move inside a compiled call: callers
+check :func:`room` and :func:`grow` between calls.
 """
 
 from __future__ import annotations
@@ -26,8 +31,11 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core import hashtable
-from slearn.core._jit import helper
-from slearn.core.hashtable import EMPTY, find, grown, probe
+from slearn.core._jit import helper, kernel
+from slearn.core.hashtable import EMPTY, grown, probe, probe_from, scaled
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_SEED = np.uint64(0x243F6A8885A308D3)
 
 
 class Tree(NamedTuple):
@@ -102,7 +110,7 @@ def grow(tree: Tree, nodes: int, entries: int) -> Tree:
         used = n if name in _NODE_FILL else m
         getattr(fresh, name)[:used] = getattr(tree, name)[:used]
     fresh.size[:] = tree.size
-    hashtable.rebuild(fresh.node_slots, fresh.parent, fresh.token, 0, n)
+    rebuild_nodes(fresh.node_slots, fresh.parent, fresh.token, n)
     hashtable.rebuild(fresh.entry_slots, fresh.owner, fresh.outcome, 0, m)
     return fresh
 
@@ -133,15 +141,46 @@ def nbytes(tree: Tree) -> int:
 # --- compiled helpers on raw arrays (inlined into the kernels that read a Tree) ----------
 
 @helper
-def child(node_slots, parent, token, node, tok):
-    """The child of ``node`` along ``tok``, or -1."""
-    return find(node_slots, parent, token, node, tok)
+def root_path(root):
+    """The path hash of the root node ``root`` (a view's: :func:`add_root`)."""
+    return path_hash(_SEED, root)
 
 
 @helper
-def child_or_add(node_slots, parent, token, first, best, newest, fresh_best, epoch, size, node, tok):
-    """The child of ``node`` along ``tok``, added when missing (room is the caller's)."""
-    s = probe(node_slots, parent, token, node, tok)
+def path_hash(h, tok):
+    """The path hash of the child along ``tok`` of a node whose path hash is ``h``
+    (``uint64``): a multiplicative hash of both, its high half folded into the low one."""
+    x = (h ^ (np.uint64(tok) + np.uint64(1))) * _GOLDEN
+    return x ^ (x >> np.uint64(32))
+
+
+@kernel
+def rebuild_nodes(node_slots, parent, token, n):
+    """Empty ``node_slots`` and insert nodes ``0..n-1`` (roots are not in the table)."""
+    node_slots[:] = EMPTY
+    h = np.empty(max(n, 1), np.uint64)
+    for r in range(n):
+        p = parent[r]
+        if p < 0:
+            h[r] = root_path(r)
+            continue
+        if p >= r:
+            raise ValueError("a context tree's node is numbered before its parent")
+        h[r] = path_hash(h[p], token[r])
+        node_slots[probe_from(node_slots, parent, token, p, token[r], scaled(node_slots, h[r]))] = r
+
+
+@helper
+def child(node_slots, parent, token, node, tok, h):
+    """The child of ``node`` along ``tok``, or -1; ``h`` is the child's path hash."""
+    return node_slots[probe_from(node_slots, parent, token, node, tok, scaled(node_slots, h))]
+
+
+@helper
+def child_or_add(node_slots, parent, token, first, best, newest, fresh_best, epoch, size, node, tok, h):
+    """The child of ``node`` along ``tok``, added when missing (room is the caller's);
+    ``h`` is the child's path hash."""
+    s = probe_from(node_slots, parent, token, node, tok, scaled(node_slots, h))
     found = node_slots[s]
     if found != EMPTY:
         return found

@@ -1,7 +1,8 @@
 """One open-addressing hash table for every pair-keyed structure of slearn.
 
 A table maps a pair of non-negative 32-bit ids ``(a, b)`` (a trie edge ``(parent, token)``,
-a context's outcome ``(node, outcome)``) to the id of the record that holds it. Slots
+a context's outcome ``(node, outcome)``) to the id of the record that holds it, found from
+the pair's hash (:func:`home`) or from one the structure computes (:func:`probe_from`). Slots
 hold record ids only (``int32``, -1 empty); a probe compares a slot's record through the
 arrays ``a_of``/``b_of`` that store the pair of every record, so the table costs 4 bytes
 a slot. A table has twice as many slots as its structure has room for records, so it is
@@ -51,16 +52,26 @@ def new_slots(capacity: int) -> np.ndarray:
 def home(slots, a, b):
     """The first slot probed for the pair ``(a, b)``: the high 32 bits of a multiplicative
     hash, scaled to the table's size."""
-    key = (np.uint64(a) << np.uint64(32)) | np.uint64(b)
-    h = (key * _GOLDEN) >> np.uint64(32)
-    return np.int64((h * np.uint64(len(slots))) >> np.uint64(32))
+    return scaled(slots, ((np.uint64(a) << np.uint64(32)) | np.uint64(b)) * _GOLDEN)
+
+
+@helper
+def scaled(slots, h):
+    """The slot of a 64-bit hash ``h`` (``uint64``): its high 32 bits, scaled to the table."""
+    return np.int64(((h >> np.uint64(32)) * np.uint64(len(slots))) >> np.uint64(32))
 
 
 @helper
 def probe(slots, a_of, b_of, a, b):
     """The slot holding the record of ``(a, b)``, or the empty slot it would take."""
+    return probe_from(slots, a_of, b_of, a, b, home(slots, a, b))
+
+
+@helper
+def probe_from(slots, a_of, b_of, a, b, s):
+    """:func:`probe` from slot ``s`` on: for a structure that hashes its pairs its own way
+    (the context tree hashes a node's whole path, :func:`slearn.core.context_tree.path_hash`)."""
     n = len(slots)
-    s = home(slots, a, b)
     while True:
         r = slots[s]
         if r == EMPTY or (a_of[r] == a and b_of[r] == b):

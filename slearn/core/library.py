@@ -384,7 +384,7 @@ def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
     _link_entries(out.owner, out.first, out.next, len(kept_entries))
     _derive_best(out.first, out.next, out.count, out.last_seen, out.fresh, out.outcome, out.best,
                  out.newest, out.fresh_best, len(kept_nodes))
-    rebuild(out.node_slots, out.parent, out.token, 0, len(kept_nodes))
+    context_tree.rebuild_nodes(out.node_slots, out.parent, out.token, len(kept_nodes))
     rebuild(out.entry_slots, out.owner, out.outcome, 0, len(kept_entries))
     return out
 
@@ -455,9 +455,11 @@ def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slo
     for i in range(lo, hi):
         start, end = offsets[i], offsets[i + 1]
         node = roots[view[i]]
+        h = context_tree.root_path(node)
         for j in range(end - 2, start - 1, -1):  # newest context token first
+            h = context_tree.path_hash(h, flat[j])
             node = context_tree.child_or_add(node_slots, parent, token, first, best, newest, fresh_best,
-                                            node_epoch, size, node, flat[j])
+                                            node_epoch, size, node, flat[j], h)
             node_epoch[node] = view_epoch[view[i]]
         e = context_tree.entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size,
                                      node, flat[end - 1])

@@ -93,7 +93,8 @@ def with_views(mixer: Mixer, views: int) -> Mixer:
 @helper
 def select(w, v, cand, n):
     """The awake expert of largest weight among contexts ``1..n`` of view ``v``:
-    ``(length, kind)``. ``cand[k, kind]`` is the expert's outcome, or -1 (asleep).
+    ``(length, kind, weight)``, its weight with what it was lent. ``cand[k, kind]`` is the
+    expert's outcome, or -1 (asleep).
 
     A sleeping expert lends its weight to its shorter twins (same kind): when the leader's
     context is missing from the history (never seen, or longer than the history), its own
@@ -115,7 +116,30 @@ def select(w, v, cand, n):
                 lent_recent = x
             else:
                 lent_fresh = x
-    return best_k, best_kind
+    return best_k, best_kind, best_w
+
+
+@helper
+def heaviest_beyond(w, beyond, lead):
+    """For frozen weights: ``beyond[v, k]``, the largest weight of view ``v``'s experts of
+    contexts longer than ``k`` (-1 past the longest), and ``lead[v]``, the longest context
+    that has an expert of the view's largest weight. When :func:`select` chose an expert
+    from contexts ``1..n`` only (the longer ones taken as asleep) whose weight outweighs
+    ``beyond[v, n]``, the longer contexts cannot change its choice (their experts weigh
+    less, and what they lent it did not decide), so they need not be looked up."""
+    K = w.shape[1]
+    for v in range(w.shape[0]):
+        beyond[v, K] = -1.0
+        for k in range(K, 0, -1):
+            heaviest = beyond[v, k]
+            for kind in range(N_KINDS):
+                heaviest = max(heaviest, w[v, k - 1, kind])
+            beyond[v, k - 1] = heaviest
+        lead[v] = 1
+        for k in range(K, 0, -1):
+            if beyond[v, k - 1] == beyond[v, 0]:  # the longest with an expert of top weight
+                lead[v] = k
+                break
 
 
 @helper

@@ -29,8 +29,10 @@ from slearn.core.context_tree import (
     entry_or_add,
     hit_probability,
     node_total,
+    path_hash,
     ranks_above,
     refresh,
+    root_path,
 )
 from slearn.core.mixer import FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core.views import NO_TOKEN
@@ -140,11 +142,13 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     out.context[r] = True
                 ep = epoch[v]
                 node, n = root[v], 0
+                h = root_path(node)
                 for k in range(1, depth + 1):
                     t = recent[v, (filled[v] - k) & M]
+                    h = path_hash(h, t)
                     node = child_or_add(node_slots, parent, tok_of, first, best, newest, fresh_best, node_epoch,
-                                        size, node, t) if learn \
-                        else child(node_slots, parent, tok_of, node, t)
+                                        size, node, t, h) if learn \
+                        else child(node_slots, parent, tok_of, node, t, h)
                     if node < 0:
                         break
                     nodes[k] = node
@@ -158,7 +162,7 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                     if m >= order:
                         out.frequency[r] = cand[order, FREQUENT]
                 if run.record and m > 0:
-                    k_sel, kind = select(weights, v, cand, m)
+                    k_sel, kind, _ = select(weights, v, cand, m)
                     record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
                                       count, fresh, last_seen, outcome, nodes, m, ranked)
                 elif run.record and run.hold and held[v] >= 0:

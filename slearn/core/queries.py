@@ -17,8 +17,8 @@ import numpy as np
 
 from slearn.core._jit import helper, kernel
 from slearn.core.addresses import address_table, cube, matrix, vector
-from slearn.core.context_tree import Tree, child
-from slearn.core.mixer import N_KINDS, Mixer, select
+from slearn.core.context_tree import Tree, child, path_hash, root_path
+from slearn.core.mixer import N_KINDS, Mixer, heaviest_beyond, select
 from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_hold, record_prediction
 from slearn.core.views import NO_TOKEN, UNKNOWN, ViewState, new_view_state
 
@@ -188,7 +188,10 @@ def predict_queries(table, n_flat, reused):
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
+    hashes = np.empty(K + 1, np.uint64)  # their path hashes
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
+    beyond, lead = np.empty((n_views, K + 1)), np.empty(n_views, np.int64)
+    heaviest_beyond(weights, beyond, lead)  # the weights stay as they are: nothing learns here
     top_k = out.top.shape[1]
     ranked = np.empty(top_k, np.int32)
     mm = _MEMO_AT  # answers remembered (see Memo)
@@ -245,16 +248,21 @@ def predict_queries(table, n_flat, reused):
             if _claim_window(recent, filled, v, depth, memo_depth, memo_window, slot):
                 recalled = slot
             else:
-                node, n = root[v], 0
-                for k in range(1, depth + 1):
-                    node = child(node_slots, parent, tok_of, node, recent[v, (filled[v] - k) & M])
-                    if node < 0:
-                        break
-                    nodes[k] = node
-                    n = k
+                # The contexts up to the longest with an expert of top weight first; the
+                # longer ones only when their experts could outweigh the one chosen.
+                nodes[0], hashes[0] = root[v], root_path(root[v])
+                reach = min(depth, lead[v])
+                n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, 0, reach)
                 found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
+                whole = n < reach or reach == depth or found < n  # no longer context counts
+                if found > 0 and not whole:
+                    if not select(weights, v, cand, found)[2] > beyond[v, n]:
+                        n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, depth)
+                        found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n,
+                                           epoch[v], cand)
+                        whole = True
                 if found > 0:
-                    k_sel, kind = select(weights, v, cand, found)
+                    k_sel, kind, _ = select(weights, v, cand, found)
                     key = np.int64(nodes[k_sel]) * N_KINDS + kind
                     rank_slot = key & (size - 1)
                     if rank_key[rank_slot] == key:
@@ -265,9 +273,16 @@ def predict_queries(table, n_flat, reused):
                         if out.top[r, top_k - 1] >= 0:  # then they alone fix the answer (a longer
                             rank_key[rank_slot] = key  # context's counted outcomes are its suffixes':
                             keep = size + rank_slot  # test_library)
-                        elif found > k_sel:  # a fresh expert ranks by fresh counts: longer contexts
-                            record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], UNKNOWN,
-                                              first, nxt, count, fresh, last_seen, outcome, nodes, found, ranked)
+                        else:  # a fresh expert ranks by fresh counts: longer contexts fill it
+                            if not whole:
+                                n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n,
+                                             depth)
+                                found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes,
+                                                   n, epoch[v], cand)
+                            if found > k_sel:
+                                record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], UNKNOWN,
+                                                  first, nxt, count, fresh, last_seen, outcome, nodes, found,
+                                                  ranked)
                 elif hold and held[v] >= 0:  # (not remembered: the window's slot is given up)
                     record_hold(out, r, held[v])
                     memo_depth[slot] = -1
@@ -287,6 +302,24 @@ def predict_queries(table, n_flat, reused):
                         memo_score[row] = out.score[r]
                         for k in range(top_k):
                             memo_top[row, k], memo_p[row, k] = out.top[r, k], out.top_p[r, k]
+
+
+@helper
+def _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, to):
+    """View ``v``'s contexts of ``n + 1..to`` tokens, looked up below ``nodes[n]`` (path hash
+    ``hashes[n]``) into ``nodes``/``hashes``; returns the longest found (below ``to``: the
+    next was never seen)."""
+    M = recent.shape[1] - 1
+    node, h = nodes[n], hashes[n]
+    for k in range(n + 1, to + 1):
+        t = recent[v, (filled[v] - k) & M]
+        h = path_hash(h, t)
+        node = child(node_slots, parent, tok_of, node, t, h)
+        if node < 0:
+            return k - 1
+        nodes[k] = node
+        hashes[k] = h
+    return to
 
 
 @helper
