@@ -48,7 +48,7 @@ class Tree(NamedTuple):
     newest: np.ndarray      # int32 per node
     fresh_best: np.ndarray  # int32 per node
     epoch: np.ndarray       # int32 per node: the epoch its fresh counts belong to
-    node_slots: np.ndarray  # int32 hash slots of (parent, token)
+    node_slots: np.ndarray  # int32 hash slots of (parent, token), placed by path hash
     owner: np.ndarray       # int32 per entry: its context node
     outcome: np.ndarray     # int32 per entry
     count: np.ndarray  # type: ignore[assignment]  # int64 per entry (shadows tuple.count)
