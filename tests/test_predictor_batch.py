@@ -9,8 +9,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from slearn.core.library import PatternLibrary
-from slearn.core.mixer import FRESH
 from slearn.core.literal import LiteralLibrary
+from slearn.core.mixer import FRESH
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
 from slearn.core.views import UNKNOWN, StepCodes, new_view_state
