@@ -255,14 +255,14 @@ def predict_queries(table, n_flat, reused):
                 n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, 0, reach)
                 found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n, epoch[v], cand)
                 whole = n < reach or reach == depth or found < n  # no longer context counts
-                if found > 0 and not whole:
-                    if not select(weights, v, cand, found)[2] > beyond[v, n]:
+                if found > 0:
+                    k_sel, kind, heaviest = select(weights, v, cand, found)
+                    if not whole and not heaviest > beyond[v, n]:  # a longer one's expert may speak
                         n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, depth)
                         found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n,
                                            epoch[v], cand)
                         whole = True
-                if found > 0:
-                    k_sel, kind, _ = select(weights, v, cand, found)
+                        k_sel, kind, heaviest = select(weights, v, cand, found)
                     key = np.int64(nodes[k_sel]) * N_KINDS + kind
                     rank_slot = key & (size - 1)
                     if rank_key[rank_slot] == key:
