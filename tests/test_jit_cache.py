@@ -131,7 +131,6 @@ def test_a_helper_compiles_once_for_literal_and_narrow_arguments():
     assert add.signatures == [(_jit.types.int64, _jit.types.int64)]
 
 
-
 def _decorator(node) -> str:
     """``helper``, ``helper-python`` (``@helper(python=True)``), ``kernel`` or ""."""
     if isinstance(node, ast.Call):

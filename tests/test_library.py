@@ -305,3 +305,23 @@ def test_a_trees_unused_room_is_not_resident_and_grown_out_arrays_go_back():
     del grown_from, tree
     gc.collect()
     assert resident_mb() - before < slots_mb + 0.25 * room_mb  # the old and the unused went back
+
+
+def test_a_rebuilt_node_table_is_the_one_learning_built_and_needs_parents_first():
+    """Nodes are placed by path hash as they are added, in id order; rebuilding the table
+    (as growing and forgetting do) places them the same way, slot for slot. A node
+    numbered before its parent cannot be placed (its path is not known yet): refused."""
+    from slearn.core.context_tree import rebuild_nodes
+    from slearn.recorders.pointer import PointerConfig, simulate
+
+    library = PatternLibrary()
+    library.learn(simulate(PointerConfig("error", trials=3000, seed=3)).to_episode())
+    tree, n = library.tree, int(library.tree.size[0])
+    slots = tree.node_slots.copy()
+    rebuild_nodes(slots, tree.parent, tree.token, n)
+    assert np.array_equal(slots, tree.node_slots) and n > 1000
+    parent = tree.parent[:n].copy()
+    parent[5] = 7  # node 5 below a later node
+    with pytest.raises(ValueError, match="numbered before its parent"):
+        rebuild_nodes(slots, parent, tree.token, n)
+

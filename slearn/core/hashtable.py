@@ -9,7 +9,8 @@ a slot. A table has twice as many slots as its structure has room for records, s
 at most half full (linear probing stays short); its size need not be a power of two (the
 hash is scaled to it, Lemire's multiply-shift), so a structure may grow by half rather than
 double: :func:`grown`. Records are never deleted one by one: a structure that forgets
-rebuilds its table with :func:`rebuild`.
+rebuilds its table with :func:`rebuild` (the context tree's nodes, placed by path hash,
+with :func:`slearn.core.context_tree.rebuild_nodes`).
 """
 
 from __future__ import annotations
