@@ -152,14 +152,30 @@ class Predictor:
                 or self._n_tokens[0] != self._known[0] or len(library.view_names) != self._known[1]:
             self._refresh()
         if self._answering:
-            flat = self._cached_codes(history, actions if type(actions) is tuple else tuple(actions))
+            codes = self._step_codes
+            try:  # every step encoded before: the common case, without a call
+                flat = b"".join(map(codes.__getitem__, history)) + codes[(actions, ())]
+            except (KeyError, TypeError):
+                flat = self._cached_codes(history, actions if type(actions) is tuple else tuple(actions))
+            else:
+                if self._mixed_roles:
+                    _check_joint([*history, (actions, ())])
             if flat is not None:
                 said = self._answers.get(flat)
                 if said is None:
-                    self._run_flat(flat)
-                    said = self._single_answer()
+                    size = len(flat) >> 2
+                    if size > self._capacity or library.tree is not self._single_state[0] \
+                            or library.mixer is not self._single_state[1]:
+                        self._prepare_single(size)
+                    self._flat_bytes[:len(flat)] = flat
+                    predict_queries(self._single_table, size, True)
+                    said = self._made.get(bytes(self._said))
+                    if said is None:
+                        said = self._single_answer()
                     if len(history) <= _KEY_STEPS:
-                        self._answers = _kept(self._answers, flat, said, self._views)
+                        if len(self._answers) * self._views >= _ANSWER_CACHE:
+                            self._answers = {}
+                        self._answers[flat] = said
                 return said
         return self.predict_unknown(list(history) + [(tuple(actions), ())])
 
@@ -217,18 +233,26 @@ class Predictor:
     def _run_flat(self, flat: bytes) -> Reports:
         """The last step of flat codes (``_codes_of``) predicted from the steps before it:
         one compiled call of three scalar arguments (the codes are copied into the single
-        query's buffer, which its kept address table points to)."""
-        size = len(flat) // 4
-        if size > self._capacity:
-            self._use_single(self._single._replace(query=single_query(self._single.query.run, size)))
+        query's buffer, which its kept address table points to; :meth:`predict` does the
+        same inline)."""
+        size = len(flat) >> 2
         library = self.library
-        state = self._single_state
-        if library.tree is not state[0] or library.mixer is not state[1]:
-            self._single_table = state_table((library.tree, library.mixer), self._single)
-            self._single_state = (library.tree, library.mixer)
+        if size > self._capacity or library.tree is not self._single_state[0] \
+                or library.mixer is not self._single_state[1]:
+            self._prepare_single(size)
         self._flat_bytes[:len(flat)] = flat
         predict_queries(self._single_table, size, True)
         return self._single.out
+
+    def _prepare_single(self, size: int) -> None:
+        """Room in the single query's buffers for ``size`` codes, and their address table
+        pointing at the library's current tree and mixer."""
+        if size > self._capacity:
+            self._use_single(self._single._replace(query=single_query(self._single.query.run, size)))
+        library = self.library
+        if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
+            self._single_table = state_table((library.tree, library.mixer), self._single)
+            self._single_state = (library.tree, library.mixer)
 
     def _use_single(self, buffers: Buffers) -> None:
         """Take ``buffers`` for single queries (their address table is made on first use)."""
