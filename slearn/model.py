@@ -69,6 +69,22 @@ class SequenceModel:
 
     def predict(self, history: Sequence[Hashable]) -> Hashable | None:
         """The most likely next item after ``history``, or ``None``."""
+        library = self.library
+        if library is not None and self._form == "sequence" and type(history) in (str, list, tuple):
+            try:  # items seen before: their steps, without the general path's calls
+                step_of = self._item_steps if self._steps_for is self.vocabulary else self._steps_of_items()
+                steps = [step_of[item] for item in history[-library.max_length:]]
+            except (KeyError, TypeError):
+                pass
+            else:
+                predictor = self._predictor
+                if predictor is None or predictor.top_k != 1:
+                    predictor = self._predictor_for(1)
+                prediction = predictor.predict(steps, ())
+                made = self._ranked_of.get(id(prediction))
+                if made is None or made[0] is not prediction or made[1] != 1:
+                    made = self._ranked_of_made(prediction, 1)
+                return made[2][0][0] if made[2] else None
         ranked = self.rank(history, k=1)
         return ranked[0][0] if ranked else None
 
@@ -267,11 +283,17 @@ class SequenceModel:
         for the same answer); a new list each call."""
         made = self._ranked_of.get(id(prediction))
         if made is None or made[0] is not prediction or made[1] != k:
-            made = (prediction, k, self._named(prediction, k).get(ITEM, []))
-            if len(self._ranked_of) >= _RANKED_KEPT:
-                self._ranked_of = {}
-            self._ranked_of[id(prediction)] = made  # (the entry keeps the object, so its id)
+            made = self._ranked_of_made(prediction, k)
         return list(made[2])
+
+    def _ranked_of_made(self, prediction, k: int) -> tuple:
+        """``(prediction, k, ranking)``, remembered by the prediction's id (the entry keeps
+        the object, so its id stays its own)."""
+        made = (prediction, k, self._named(prediction, k).get(ITEM, []))
+        if len(self._ranked_of) >= _RANKED_KEPT:
+            self._ranked_of = {}
+        self._ranked_of[id(prediction)] = made
+        return made
 
     def _tail(self, history: Sequence[Hashable]) -> Sequence[Hashable]:
         keep = self.library.max_length if self.library is not None else 1

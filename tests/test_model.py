@@ -150,6 +150,31 @@ def test_rank_of_known_items_equals_the_general_path(scoring, monkeypatch):
         model.predict(["a", ["b"]])
 
 
+@pytest.mark.parametrize("scoring", ["adaptive", "literal"])
+def test_predict_answers_the_top_of_rank(scoring):
+    """predict's own path for items seen before answers the first item rank(k=1) answers:
+    strings, lists and tuples, histories longer than a context, empty and with unseen
+    items, calls mixed with rank(k=3) (another predictor), and after more learning."""
+    import random
+
+    rng = random.Random(11)
+    model = SequenceModel(max_length=3, scoring=scoring)
+    assert model.predict("ab") is None  # nothing learned yet
+    for round_ in range(2):
+        for _ in range(25):
+            model.learn([rng.choice("abcde"[: 4 + round_]) for _ in range(rng.randint(1, 30))])
+        histories = ["".join(rng.choice("abcdex") for _ in range(rng.randint(0, 7))) for _ in range(150)]
+        histories += [list(h) for h in histories[:30]] + [tuple(h) for h in histories[30:60]]
+        said = []
+        for i, history in enumerate(histories):
+            said.append(model.predict(history))
+            if i % 7 == 0:
+                model.rank(history, k=3)
+        top = [ranked[0][0] if ranked else None for ranked in (model.rank(h, k=1) for h in histories)]
+        assert said == top
+        assert any(x is not None for x in said) and None in said
+
+
 def test_bad_containers_channels_and_k_are_refused_in_one_line():
     """Issue 11's bad input, past single items: what is not a sequence, a step or a mapping,
     a channel the model never learned (or learned in the other role), a k that is not a
