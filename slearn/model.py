@@ -29,6 +29,8 @@ from slearn.errors import ParameterError
 
 ITEM = "item"
 _RANKED_KEPT = 1 << 14  # rankings a model remembers by their prediction
+_PREDICTORS_KEPT = 4    # predictors a model keeps, one per k asked (each remembers answers;
+#                         a predictor follows the library as it learns)
 SCORINGS = ("adaptive", "literal")
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
@@ -53,7 +55,7 @@ class SequenceModel:
         self._form: str | None = None
         self._params = (max_length, max_patterns)
         self.library: PatternLibrary | LiteralLibrary | None = None
-        self._predictor: Predictor | None = None
+        self._predictors: dict[int, Predictor] = {}  # top_k -> a predictor of self.library
         self._steps_for: Vocabulary | None = None  # the vocabulary _item_steps was made from
         self._item_steps: dict = {}   # item -> its step, see _known_steps
         self._ranked_of: dict = {}    # id(prediction) -> (prediction, k, ranking), see _ranked_items
@@ -77,8 +79,8 @@ class SequenceModel:
             except (KeyError, TypeError):
                 pass
             else:
-                predictor = self._predictor
-                if predictor is None or predictor.top_k != 1:
+                predictor = self._predictors.get(1)
+                if predictor is None or predictor.library is not library:
                     predictor = self._predictor_for(1)
                 prediction = predictor.predict(steps, ())
                 made = self._ranked_of.get(id(prediction))
@@ -216,7 +218,6 @@ class SequenceModel:
         if self.library is None:
             self.library = self._new_library()
         self.library.learn(episode)
-        self._predictor = None
 
     def _symbol(self, channel: str, value: Any, learn: bool) -> int:
         try:
@@ -311,9 +312,12 @@ class SequenceModel:
     def _predictor_for(self, k: int) -> Predictor:
         if self.library is None:
             raise ParameterError("the model has learned nothing yet")
-        if self._predictor is None or self._predictor.top_k != k:
-            self._predictor = Predictor(self.library, top_k=k)
-        return self._predictor
+        predictor = self._predictors.get(k)
+        if predictor is None or predictor.library is not self.library:
+            if len(self._predictors) >= _PREDICTORS_KEPT:
+                self._predictors = {}
+            predictor = self._predictors[k] = Predictor(self.library, top_k=k)
+        return predictor
 
     def _lookup_steps(self, library: PatternLibrary | LiteralLibrary, steps: list) -> tuple[list, np.ndarray]:
         """Steps as symbols; a value never seen gets a symbol past the vocabulary."""

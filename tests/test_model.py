@@ -175,6 +175,28 @@ def test_predict_answers_the_top_of_rank(scoring):
         assert any(x is not None for x in said) and None in said
 
 
+@pytest.mark.parametrize("scoring", ["adaptive", "literal"])
+def test_kept_predictors_follow_learning(scoring):
+    """A model keeps one predictor per k across calls and learning; its answers after
+    each sequence learned equal those of a twin that asks through new predictors only."""
+    import random
+
+    rng = random.Random(5)
+    model, twin = SequenceModel(max_length=3, scoring=scoring), SequenceModel(max_length=3, scoring=scoring)
+    histories = ["".join(rng.choice("abcdx") for _ in range(rng.randint(0, 5))) for _ in range(40)]
+    for _ in range(12):
+        sequence = [rng.choice("abcd") for _ in range(rng.randint(1, 20))]
+        model.learn(sequence)
+        twin.learn(sequence)
+        for history in histories:
+            twin._predictors = {}
+            expected = (twin.predict(history), twin.rank(history, k=2))
+            twin._predictors = {}
+            assert (model.predict(history), model.rank(history, k=2)) == (expected[0], expected[1])
+            assert model.rank(history, k=1) == twin.rank(history, k=1)
+    assert set(model._predictors) == {1, 2}
+
+
 def test_bad_containers_channels_and_k_are_refused_in_one_line():
     """Issue 11's bad input, past single items: what is not a sequence, a step or a mapping,
     a channel the model never learned (or learned in the other role), a k that is not a
