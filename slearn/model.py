@@ -29,6 +29,7 @@ from slearn.errors import ParameterError
 
 ITEM = "item"
 _RANKED_KEPT = 1 << 14  # rankings a model remembers by their prediction
+_ROWS_KEPT = 1 << 16   # steps a model remembers the symbols of (symbols never change)
 _PREDICTORS_KEPT = 4    # predictors a model keeps, one per k asked (each remembers answers;
 #                         a predictor follows the library as it learns)
 SCORINGS = ("adaptive", "literal")
@@ -58,7 +59,9 @@ class SequenceModel:
         self._predictors: dict[int, Predictor] = {}  # top_k -> a predictor of self.library
         self._steps_for: Vocabulary | None = None  # the vocabulary _item_steps was made from
         self._item_steps: dict = {}   # item -> its step, see _known_steps
-        self._ranked_of: dict = {}    # id(prediction) -> (prediction, k, ranking), see _ranked_items
+        self._ranked_of: dict = {}    # id(prediction) -> (prediction, k, rankings), see _named_of
+        self._rows_of: dict = {}      # a step's (actions, observations) items -> its symbols,
+        self._rows_for: Vocabulary | None = None  # in this vocabulary
 
     # --- the sequence form --------------------------------------------------------------
     def learn(self, sequence: Iterable[Hashable]) -> None:
@@ -83,10 +86,11 @@ class SequenceModel:
                 if predictor is None or predictor.library is not library:
                     predictor = self._predictor_for(1)
                 prediction = predictor.predict(steps, ())
-                made = self._ranked_of.get(id(prediction))
-                if made is None or made[0] is not prediction or made[1] != 1:
-                    made = self._ranked_of_made(prediction, 1)
-                return made[2][0][0] if made[2] else None
+                made = self._ranked_of.get(id(prediction))  # (_named_of, read inline)
+                named = made[2] if made is not None and made[0] is prediction and made[1] == 1 \
+                    else self._named_of(prediction, 1)
+                top = named.get(ITEM)
+                return top[0][0] if top else None
         ranked = self.rank(history, k=1)
         return ranked[0][0] if ranked else None
 
@@ -165,6 +169,10 @@ class SequenceModel:
 
     def predict_step(self, history: Sequence[Step], actions: Mapping[str, Hashable]) -> dict:
         """``{channel: value}``: each observation channel's most likely next value."""
+        if self._form == "steps" and self.library is not None and type(history) in (list, tuple):
+            named = self._known_step_query(history, actions, 1)
+            if named is not None:
+                return {c: ranked[0][0] for c, ranked in named.items() if ranked}
         return {c: ranked[0][0] for c, ranked in self.rank_step(history, actions, k=1).items()
                 if ranked}
 
@@ -175,7 +183,41 @@ class SequenceModel:
         check_top_k(k, "k")
         if not isinstance(actions, Mapping):
             raise ParameterError(f"actions must be a mapping channel -> value, not {actions!r}")
-        return self._query(list(_iterable(history, "a history of steps")), actions, k)
+        history = list(_iterable(history, "a history of steps"))
+        named = self._known_step_query(history, actions, k) if self.library is not None else None
+        if named is not None:
+            return {channel: list(ranked) for channel, ranked in named.items()}
+        return self._query(history, actions, k)
+
+    def _known_step_query(self, history, actions, k: int) -> dict | None:
+        """What :meth:`_query` answers (shared lists: copy before handing them out), when
+        every step is a pair of dicts of channels in their roles with values seen before,
+        by the predictor's path for steps it may have seen (it remembers their codes);
+        otherwise ``None``, and the general path answers or refuses."""
+        if self._rows_for is not self.vocabulary:
+            self._rows_for, self._rows_of = self.vocabulary, {}
+        known, row_of, rows = self.vocabulary.known_symbols, self._rows_of, []
+        for step in history:
+            if type(step) is not tuple or len(step) != 2 or type(step[0]) is not dict \
+                    or type(step[1]) is not dict:
+                return None
+            key = (tuple(step[0].items()), tuple(step[1].items()))
+            try:
+                row = row_of.get(key)
+            except TypeError:  # a value not hashable
+                return None
+            if row is None:
+                acts, obs = known(step[0], ACTION), known(step[1], OBSERVATION)
+                if acts is None or obs is None:
+                    return None
+                if len(row_of) >= _ROWS_KEPT:
+                    self._rows_of = row_of = {}
+                row = row_of[key] = (acts, obs)
+            rows.append(row)
+        acts = known(actions, ACTION) if type(actions) is dict else None
+        if acts is None:
+            return None
+        return self._named_of(self._predictor_for(k).predict(rows, acts), k)
 
     # --- files --------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
@@ -279,22 +321,21 @@ class SequenceModel:
         return self._item_steps
 
     def _ranked_items(self, prediction, k: int) -> list[tuple[Hashable, float]]:
-        """The item view's ranking of ``prediction`` as ``(item, share)`` pairs, the one made
-        before for the same prediction object if any (a predictor hands out the same object
-        for the same answer); a new list each call."""
+        """The item view's ranking of ``prediction`` as ``(item, share)`` pairs; a new list
+        each call."""
+        return list(self._named_of(prediction, k).get(ITEM, []))
+
+    def _named_of(self, prediction, k: int) -> dict:
+        """``_named(prediction, k)``, the one made before for the same prediction object if
+        any (a predictor hands out the same object for the same answer). Shared: copy what
+        is handed out."""
         made = self._ranked_of.get(id(prediction))
         if made is None or made[0] is not prediction or made[1] != k:
-            made = self._ranked_of_made(prediction, k)
-        return list(made[2])
-
-    def _ranked_of_made(self, prediction, k: int) -> tuple:
-        """``(prediction, k, ranking)``, remembered by the prediction's id (the entry keeps
-        the object, so its id stays its own)."""
-        made = (prediction, k, self._named(prediction, k).get(ITEM, []))
-        if len(self._ranked_of) >= _RANKED_KEPT:
-            self._ranked_of = {}
-        self._ranked_of[id(prediction)] = made
-        return made
+            made = (prediction, k, self._named(prediction, k))
+            if len(self._ranked_of) >= _RANKED_KEPT:
+                self._ranked_of = {}
+            self._ranked_of[id(prediction)] = made  # (the entry keeps the object, so its id)
+        return made[2]
 
     def _tail(self, history: Sequence[Hashable]) -> Sequence[Hashable]:
         keep = self.library.max_length if self.library is not None else 1

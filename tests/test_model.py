@@ -197,6 +197,45 @@ def test_kept_predictors_follow_learning(scoring):
     assert set(model._predictors) == {1, 2}
 
 
+def test_steps_seen_before_rank_what_the_general_path_ranks(monkeypatch):
+    """predict_step and rank_step take the predictor's path when every step is a pair of
+    dicts of known values; they answer what the general path answers, for every k, and
+    other steps (values never seen, lists, other mappings, channel order) still work."""
+    import random
+    from types import MappingProxyType
+
+    rng = random.Random(9)
+    model = SequenceModel(max_length=3)
+
+    def step(cmd, pos):
+        return ({"a": cmd, "b": -cmd}, {"p": pos, "q": pos % 3})
+
+    for _ in range(15):
+        pos, steps = 0, []
+        for _ in range(rng.randint(1, 30)):
+            cmd = rng.choice((-1, 1))
+            pos = (pos + cmd) % 7
+            steps.append(step(cmd, pos))
+        model.learn_steps(steps)
+    histories = [[step(rng.choice((-1, 1)), rng.randint(0, 7)) for _ in range(rng.randint(0, 5))]
+                 for _ in range(120)]
+    histories += [[({"b": 1, "a": -1}, {"q": 1, "p": 4})], [[{"a": 1, "b": -1}, {"p": 2, "q": 2}]],
+                  [(MappingProxyType({"a": 1, "b": -1}), {"p": 2, "q": 2})], (step(1, 3), step(1, 4))]
+    actions = [rng.choice(({"a": 1, "b": -1}, {"a": -1, "b": 1}, {"a": 5, "b": 1})) for _ in histories]
+    fast = [(model.predict_step(h, a), model.rank_step(h, a, k=1), model.rank_step(h, a, k=3))
+            for h, a in zip(histories, actions)]
+    assert sum(bool(said) for said, _, _ in fast) > 60
+    assert sum(model._known_step_query(h, a, 3) is not None for h, a in zip(histories, actions)) > 60
+    fast[0][2].setdefault("p", []).append(("mutated", 1.0))  # a caller's lists: not the model's
+    monkeypatch.setattr(SequenceModel, "_known_step_query", lambda self, history, actions, k: None)
+    general = [(model.predict_step(h, a), model.rank_step(h, a, k=1), model.rank_step(h, a, k=3))
+               for h, a in zip(histories, actions)]
+    monkeypatch.undo()
+    fast[0][2]["p"].pop()
+    assert fast == general
+    assert model.rank_step(histories[0], actions[0], k=3) == general[0][2]
+
+
 def test_bad_containers_channels_and_k_are_refused_in_one_line():
     """Issue 11's bad input, past single items: what is not a sequence, a step or a mapping,
     a channel the model never learned (or learned in the other role), a k that is not a

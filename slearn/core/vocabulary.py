@@ -53,6 +53,21 @@ class Vocabulary:
         """The symbol of ``(channel, value)`` or ``None`` when it was never registered."""
         return self._symbols.get((channel, value))
 
+    def known_symbols(self, mapping: dict, role: str) -> tuple[int, ...] | None:
+        """The symbols of a ``{channel: value}`` mapping, in its order, or ``None`` when a
+        channel is not one of ``role`` or a value was never registered (or is not hashable)."""
+        get, roles = self._symbols.get, self.roles
+        out = []
+        try:
+            for channel, value in mapping.items():
+                found = get((channel, value))
+                if found is None or roles[channel] != role:
+                    return None
+                out.append(found)
+        except (KeyError, TypeError):
+            return None
+        return tuple(out)
+
     def get_symbols(self, channel: str, values: Iterable[Hashable]) -> list[int | None]:
         """:meth:`get_symbol` of each value (raises ``TypeError`` for one not hashable)."""
         get = self._symbols.get
