@@ -128,6 +128,7 @@ class Predictor:
         self._batch_state: tuple = (None, None)  # the tree and mixer their rows point to
         self._batch_rows = np.zeros(0, np.int64)
         self._token_of: dict[tuple[int, tuple[int, ...]], int] = {}
+        self._view_list: tuple = (None, [])  # the library's symbol -> view mapping, as a list
         self._symbols_of: dict[int, tuple[int, ...]] = {}
         self._step_codes: dict = {}  # step -> its flat codes' bytes, see _step_code
         self._answers: dict = {}     # a query's flat codes -> Prediction, for the library's clock
@@ -403,11 +404,14 @@ class Predictor:
             _check_joint(steps)
             view_of = None
         else:
-            view_of = library._factored_mapping()
+            mapping = library._factored_mapping()
             if unknown_views is not None and len(unknown_views):
-                view_of = np.concatenate((view_of, np.asarray(unknown_views, np.int32)))
+                view_of = np.concatenate((mapping, np.asarray(unknown_views, np.int32))).tolist()
+            else:  # the mapping as a list, made once per mapping (a step's lookups are few)
+                if self._view_list[0] is not mapping:
+                    self._view_list = (mapping, mapping.tolist())
+                view_of = self._view_list[1]
             _check_vocabulary(steps, len(view_of))
-            view_of = view_of.tolist()
         return self._codes_of(steps, view_of)
 
     def _cached_codes(self, history, actions: tuple) -> bytes | None:
@@ -447,9 +451,10 @@ class Predictor:
         if len(self._step_codes) >= _STEP_CODES:
             self._step_codes, self._acted, self._observed, self._mixed_roles = {}, set(), set(), False
         self._step_codes[step] = code
-        self._acted.update(acts)
-        self._observed.update(obs)
-        self._mixed_roles = self.library.vocabulary is None and not self._acted.isdisjoint(self._observed)
+        if self.library.vocabulary is None:  # (a vocabulary keeps the roles apart)
+            self._acted.update(acts)
+            self._observed.update(obs)
+            self._mixed_roles = not self._acted.isdisjoint(self._observed)
         return code
 
     def _codes_of(self, steps: list[Step], view_of) -> bytes:
