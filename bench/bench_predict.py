@@ -15,7 +15,12 @@ action):
   the path ``slearn replay`` takes);
 - ``SequenceModel.predict`` and ``predict_many`` (the sequence API) on a text of
   ``--text-chars`` characters from a random source of order 2 (seeded), histories of 5
-  items, against a dict model of contexts of 1..5 items (its most frequent next item).
+  items, against a dict model of contexts of 1..5 items (its most frequent next item);
+- ``SequenceModel.predict_step`` (the step form: ``(actions, observations)`` dicts) on a
+  random walk of ``--joints`` joints of 12 positions, each step's commands drawn, histories of
+  6 steps, against a dict model of contexts of 1..6 steps (its most frequent next
+  observations): a first pass over held-out steps (most steps new to the model) and a
+  pass asked again.
 
 Rates are in CPU time of this process (the machine may be shared); best of ``--repeat``.
 Run: ``python bench/bench_predict.py [--train 20000] [--queries 20000] [--json]``.
@@ -89,7 +94,8 @@ def new_predictor(library, warm_up: tuple) -> Predictor:
     return predictor
 
 
-def measure(condition: str, train: int, queries: int, repeat: int, text_chars: int = 100_000) -> dict:
+def measure(condition: str, train: int, queries: int, repeat: int, text_chars: int = 100_000,
+            joints: int = 3, step_train: int = 10_000) -> dict:
     library = PatternLibrary()
     train_episode = simulate(PointerConfig(condition, trials=train, seed=1)).to_episode()
     library.learn(train_episode)
@@ -124,6 +130,7 @@ def measure(condition: str, train: int, queries: int, repeat: int, text_chars: i
     out["batch_accuracy"] = float(np.mean([s == t for s, t in zip(said, truth)]))
     text = measure_sequences(text_chars, repeat)
     out.update({k if k != "queries" else "queries_text": v for k, v in text.items()})
+    out.update(measure_steps(joints, step_train, min(queries, 4000), repeat))
     out["dict_model_accuracy"] = float(np.mean([naive.predict(x, a) == t for (x, a), t in zip(calls, truth)]))
     return out
 
@@ -161,6 +168,68 @@ class ItemDictModel:
             if found is not None:
                 return found
         return None
+
+
+class StepDictModel:
+    """The anchor of the step form, :class:`DictModel` over dicts: the observations of the last
+    1..order steps and the next actions -> the most frequent next observations (the longest
+    context seen speaks)."""
+
+    def __init__(self, order: int) -> None:
+        self.order = order
+        self.best: dict[tuple, tuple] = {}
+
+    def learn(self, steps: list) -> None:
+        items = [(tuple(a.items()), tuple(o.items())) for a, o in steps]
+        counts: dict[tuple, Counter] = {}
+        for t in range(1, len(items)):
+            for k in range(1, min(self.order, t) + 1):
+                context = tuple(o for _, o in items[t - k:t]) + (items[t][0],)
+                counts.setdefault(context, Counter())[items[t][1]] += 1
+        self.best.update({c: counter.most_common(1)[0][0] for c, counter in counts.items()})
+
+    def predict(self, history: list, actions: dict) -> dict:
+        observed, acts = [tuple(o.items()) for _, o in history], tuple(actions.items())
+        for k in range(min(self.order, len(observed)), 0, -1):
+            found = self.best.get(tuple(observed[-k:]) + (acts,))
+            if found is not None:
+                return dict(found)
+        return {}
+
+
+def joint_walk(joints: int, steps: int, seed: int) -> list:
+    """Steps ``({"j0": command, ...}, {"p0": position, ...})`` of ``joints`` joints on 12
+    positions, each moved by a command drawn from -1, 0, 1."""
+    rng = np.random.default_rng(seed)
+    position, out = np.zeros(joints, np.int64), []
+    for command in rng.integers(-1, 2, (steps, joints)).tolist():
+        position = (position + command) % 12
+        out.append(({f"j{i}": c for i, c in enumerate(command)},
+                    {f"p{i}": p for i, p in enumerate(position.tolist())}))
+    return out
+
+
+def measure_steps(joints: int, train: int, queries: int, repeat: int) -> dict:
+    from slearn import SequenceModel
+
+    model, naive, order = SequenceModel(), StepDictModel(6), 6
+    for seed in range(max(train // 500, 1)):
+        episode = joint_walk(joints, 500, seed)
+        model.learn_steps(episode)
+        naive.learn(episode)
+    held_out = joint_walk(joints, queries + order, 1000)
+    calls = [(held_out[i - order:i], held_out[i][0]) for i in range(order, len(held_out))]
+    truth = [held_out[i][1] for i in range(order, len(held_out))]
+    model.predict_step(*calls[0])
+    started = time.process_time()
+    said = [model.predict_step(x, a) for x, a in calls]  # the first pass: most steps new
+    first = len(calls) / (time.process_time() - started)
+    return {"joints": joints, "queries_steps": len(calls), "step_first_per_s": first,
+            "step_again_per_s": best_rate(lambda: [model.predict_step(x, a) for x, a in calls], len(calls),
+                                          repeat),
+            "step_dict_per_s": best_rate(lambda: [naive.predict(x, a) for x, a in calls], len(calls), repeat),
+            "step_accuracy": float(np.mean([s == t for s, t in zip(said, truth)])),
+            "step_dict_accuracy": float(np.mean([naive.predict(x, a) == t for (x, a), t in zip(calls, truth)]))}
 
 
 def measure_sequences(chars: int, repeat: int) -> dict:
@@ -203,7 +272,12 @@ def render(r: dict) -> str:
         f"SequenceModel.predict       {r['sequence_predict_per_s']:>12,.0f}/s   dict model "
         f"{r['item_dict_per_s']:>10,.0f}/s   ratio {r['sequence_predict_per_s'] / r['item_dict_per_s']:.3f}",
         f"SequenceModel.predict_many  {r['sequence_many_per_s']:>12,.0f}/s   dict model "
-        f"{r['item_dict_per_s']:>10,.0f}/s   ratio {r['sequence_many_per_s'] / r['item_dict_per_s']:.3f}"])
+        f"{r['item_dict_per_s']:>10,.0f}/s   ratio {r['sequence_many_per_s'] / r['item_dict_per_s']:.3f}",
+        f"step form, {r['joints']} joints, {r['queries_steps']:,} next steps (accuracy: slearn "
+        f"{r['step_accuracy']:.3f}, dict model {r['step_dict_accuracy']:.3f})",
+        f"SequenceModel.predict_step  {r['step_first_per_s']:>12,.0f}/s first pass, "
+        f"{r['step_again_per_s']:,.0f}/s asked again   dict model {r['step_dict_per_s']:,.0f}/s   ratio "
+        f"{r['step_first_per_s'] / r['step_dict_per_s']:.3f} / {r['step_again_per_s'] / r['step_dict_per_s']:.3f}"])
 
 
 def main() -> None:
@@ -213,9 +287,10 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=20_000)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--text-chars", type=int, default=100_000)
+    parser.add_argument("--joints", type=int, default=3, help="joints of the step form's walk")
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
-    result = measure(args.condition, args.train, args.queries, args.repeat, args.text_chars)
+    result = measure(args.condition, args.train, args.queries, args.repeat, args.text_chars, args.joints)
     print(json.dumps(result, indent=2) if args.json else render(result))
 
 

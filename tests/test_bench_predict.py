@@ -15,7 +15,7 @@ from slearn.recorders.pointer import PointerConfig, simulate  # noqa: E402
 
 
 def test_the_bench_prints_every_figure_with_its_anchor():
-    result = bench_predict.measure("delay", train=600, queries=300, repeat=1, text_chars=2000)
+    result = bench_predict.measure("delay", train=600, queries=300, repeat=1, text_chars=2000, step_train=1000)
     assert 0.0 < result["repeated_share"] < 1.0
     for rate in ("predict_per_s", "predict_new_per_s", "dict_model_per_s", "dict_model_new_per_s",
                  "batch_per_s", "replay_core_per_s"):
@@ -23,6 +23,21 @@ def test_the_bench_prints_every_figure_with_its_anchor():
     assert 0.3 < result["batch_accuracy"] <= 1.0 and 0.3 < result["dict_model_accuracy"] <= 1.0
     text = bench_predict.render(result)
     assert "every query new" in text and "queries asked before" in text and "SequenceModel.predict_many" in text
+    assert result["step_first_per_s"] > 0 and result["step_again_per_s"] > 0 and result["step_dict_per_s"] > 0
+    assert 0.3 < result["step_accuracy"] <= 1.0 and "predict_step" in text
+
+
+def test_the_step_dict_model_predicts_a_deterministic_walk():
+    """The step form's anchor is a model of the same order: on a walk it has seen, the next
+    observations follow from the last positions and the commands."""
+    steps = bench_predict.joint_walk(2, 3000, 0)
+    naive = bench_predict.StepDictModel(6)
+    naive.learn(steps)
+    held = bench_predict.joint_walk(2, 200, 1)
+    said = [(naive.predict(held[i - 6:i], held[i][0]), held[i][1]) for i in range(6, len(held))]
+    assert all(guess == truth for guess, truth in said if guess)  # a context seen says the walk
+    assert sum(bool(guess) for guess, _ in said) > 0.8 * len(said)
+    assert naive.predict([], {"j0": 1, "j1": 0}) == {}
 
 
 def test_a_new_predictor_answers_as_the_batch_does():
