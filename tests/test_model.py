@@ -176,13 +176,16 @@ def test_predict_answers_the_top_of_rank(scoring):
 
 
 @pytest.mark.parametrize("scoring", ["adaptive", "literal"])
-def test_kept_predictors_follow_learning(scoring):
-    """A model keeps one predictor per k across calls and learning; its answers after
-    each sequence learned equal those of a twin that asks through new predictors only."""
+@pytest.mark.parametrize("max_patterns", [None, 40])
+def test_kept_predictors_follow_learning(scoring, max_patterns):
+    """A model keeps one predictor per k across calls and learning (forgetting too); its
+    answers after each sequence learned equal those of a twin that asks through new
+    predictors only."""
     import random
 
     rng = random.Random(5)
-    model, twin = SequenceModel(max_length=3, scoring=scoring), SequenceModel(max_length=3, scoring=scoring)
+    options = {"max_length": 3, "scoring": scoring, "max_patterns": max_patterns}
+    model, twin = SequenceModel(**options), SequenceModel(**options)
     histories = ["".join(rng.choice("abcdx") for _ in range(rng.randint(0, 5))) for _ in range(40)]
     for _ in range(12):
         sequence = [rng.choice("abcd") for _ in range(rng.randint(1, 20))]
