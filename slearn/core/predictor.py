@@ -27,6 +27,8 @@ import numpy as np
 
 from slearn.core.online import REPORT_KINDS, Reports, new_reports
 from slearn.core.queries import (
+    N_FLAT,
+    REUSED,
     Buffers,
     forget,
     kept_buffers,
@@ -121,6 +123,7 @@ class Predictor:
         self._known: tuple[int, ...] = ()
         self._single: Buffers  # one query's buffers (made by _refresh)
         self._flat_bytes = memoryview(b"")  # their flat codes' bytes, written by _run_flat
+        self._single_run = memoryview(b"")  # their run scalars (Query.run), the same
         self._capacity = 0                  # and how many codes they hold
         self._single_state: tuple = (None, None)  # the tree and mixer its table points to
         self._single_table = np.zeros(0, np.int64)
@@ -169,7 +172,8 @@ class Predictor:
                             or library.mixer is not self._single_state[1]:
                         self._prepare_single(size)
                     self._flat_bytes[:len(flat)] = flat
-                    predict_queries(self._single_table, size, True)
+                    self._single_run[N_FLAT] = size
+                    predict_queries(self._single_table)
                     said = self._made.get(bytes(self._said))
                     if said is None:
                         said = self._single_answer()
@@ -242,7 +246,8 @@ class Predictor:
                 or library.mixer is not self._single_state[1]:
             self._prepare_single(size)
         self._flat_bytes[:len(flat)] = flat
-        predict_queries(self._single_table, size, True)
+        self._single_run[N_FLAT] = size
+        predict_queries(self._single_table)
         return self._single.out
 
     def _prepare_single(self, size: int) -> None:
@@ -258,6 +263,8 @@ class Predictor:
     def _use_single(self, buffers: Buffers) -> None:
         """Take ``buffers`` for single queries (their address table is made on first use)."""
         self._single, self._single_state = buffers, (None, None)
+        self._single_run = buffers.query.run.data  # its scalars, written in place per query
+        self._single_run[REUSED] = 1
         self._flat_bytes = buffers.query.flat.data.cast("B")
         self._capacity = len(buffers.query.flat)
 
@@ -277,7 +284,8 @@ class Predictor:
             self._batch_state = (library.tree, library.mixer)
         query = work.query._replace(action=codes.action, offsets=codes.offsets, view=codes.view,
                                     token=codes.token, starts=starts, ends=ends)
-        predict_queries(run_table(self._batch_rows, out, query), -1, False)
+        query.run[N_FLAT], query.run[REUSED] = -1, 0
+        predict_queries(run_table(self._batch_rows, out, query, work.work))
         return out
 
     def _single_prediction(self, out: Reports) -> Prediction:

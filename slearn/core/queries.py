@@ -59,11 +59,11 @@ def forget(memo: Memo) -> None:
 
 class Query(NamedTuple):
     """What a query run asks: the run's scalars (``has_actions``, ``empty_action``,
-    ``empty_observation``, ``hold``: see :class:`slearn.core.online.Reports`), then either a
-    single query's flat codes (see ``Predictor._codes_of``) or encoded steps and each
-    query's bounds."""
+    ``empty_observation``, ``hold``: see :class:`slearn.core.online.Reports`; then
+    ``N_FLAT`` and ``REUSED``, :func:`predict_queries`' own), then either a single query's
+    flat codes (see ``Predictor._codes_of``) or encoded steps and each query's bounds."""
 
-    run: np.ndarray      # int32[4]
+    run: np.ndarray      # int32[6]
     flat: np.ndarray     # int32
     action: np.ndarray   # int32 per step
     offsets: np.ndarray  # int64 per step + 1
@@ -73,6 +73,21 @@ class Query(NamedTuple):
     ends: np.ndarray     # int64 per query
 
 
+N_FLAT, REUSED = 4, 5  # places in Query.run of predict_queries' two scalars
+
+
+class Work(NamedTuple):
+    """A query run's scratch arrays, kept with its buffers (six allocations were a fifth of
+    a single query's compiled call)."""
+
+    nodes: np.ndarray   # int32 (max_context + 1,): the contexts found
+    hashes: np.ndarray  # uint64 (max_context + 1,): their path hashes
+    cand: np.ndarray    # int32 (max_context + 1, kinds): the experts' outcomes
+    beyond: np.ndarray  # float64 (views, max_context + 1): see mixer.heaviest_beyond
+    lead: np.ndarray    # int64 (views,)
+    ranked: np.ndarray  # int32 (top_k,): see online.record_prediction
+
+
 class Buffers(NamedTuple):
     """Everything a query run works in besides the library's own state."""
 
@@ -80,6 +95,7 @@ class Buffers(NamedTuple):
     out: Reports
     memo: Memo
     query: Query
+    work: Work
 
 
 MEMO_BYTES = 1 << 18  # a memo's size at most: beside the tree's hot part, what a core's L2
@@ -109,13 +125,16 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     query and view), within ``MEMO_BYTES`` (``memo_slots``)."""
     n_views = len(library.view_names)
     n = queries * n_views
-    run = np.array([library.has_actions, library.empty_action, library.empty_observation, library.factored],
-                   np.int32)
+    run = np.array([library.has_actions, library.empty_action, library.empty_observation, library.factored,
+                    -1, 0], np.int32)
     top_k = max(top_k, 1)
     slots = memo_slots(n if slots is None else slots, library.max_context, top_k)
+    k = library.max_context + 1
+    work = Work(np.zeros(k, np.int32), np.zeros(k, np.uint64), np.full((k, N_KINDS), -1, np.int32),
+                np.zeros((n_views, k)), np.zeros(n_views, np.int64), np.zeros(top_k, np.int32))
     return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
                    new_memo(slots, library.max_context, top_k),
-                   Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64))
+                   Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64), work)
 
 
 def single_query(run: np.ndarray, size: int) -> Query:
@@ -130,12 +149,12 @@ def state_table(state: tuple, buffers: Buffers) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``predict_queries``
     reads them: the tree's fields, the mixer's, the scratch streams', the memo's (the
     :func:`kept_rows`), then the reports' and the query's. The caller keeps them alive."""
-    return run_table(kept_rows(state, buffers), buffers.out, buffers.query)
+    return run_table(kept_rows(state, buffers), buffers.out, buffers.query, buffers.work)
 
 
-def run_table(kept: np.ndarray, out: Reports, query: Query) -> np.ndarray:
-    """:func:`state_table` from its :func:`kept_rows` and a run's reports and query."""
-    return np.concatenate((kept, address_table((*out, *query))))
+def run_table(kept: np.ndarray, out: Reports, query: Query, work: Work) -> np.ndarray:
+    """:func:`state_table` from its :func:`kept_rows` and a run's reports, query and scratch."""
+    return np.concatenate((kept, address_table((*out, *query, *work))))
 
 
 def kept_rows(state: tuple, buffers: Buffers) -> np.ndarray:
@@ -150,20 +169,21 @@ _TREE, _MIXER, _SCRATCH = 0, len(Tree._fields), len(Tree._fields) + len(Mixer._f
 _MEMO_AT = _SCRATCH + len(ViewState._fields)
 _OUT = _MEMO_AT + len(Memo._fields)
 _QUERY_AT = _OUT + len(Reports._fields)
+_WORK_AT = _QUERY_AT + len(Query._fields)
 
 
 @kernel
-def predict_queries(table, n_flat, reused):
+def predict_queries(table):
     """For query ``i`` of the table's :class:`Query`: replay steps ``starts[i]..ends[i] - 1``
     on fresh scratch streams, as if they were an episode of their own, then predict every view at step ``ends[i]`` (its
     action pushed) as ``run_codes`` does frozen, its outcome unknown: rows ``i * views ..``
-    of ``out``. ``n_flat >= 0``: one query, the first ``n_flat`` flat
-    codes. ``out`` holds abstentions (``new_reports``) unless ``reused`` (then each query's
-    rows are reset first). Answers with an unknown outcome are remembered in the table's
+    of ``out``. ``run[N_FLAT] >= 0``: one query, the first ``run[N_FLAT]`` flat
+    codes. ``out`` holds abstentions (``new_reports``) unless ``run[REUSED]`` (then each
+    query's rows are reset first). Answers with an unknown outcome are remembered in the table's
     :class:`Memo`, which stays valid while the library does not learn. Everything comes
-    as one address table (``state_table``): numba wraps every array argument on every
-    call, which cost more than a small query; for the same reason the query step is walked
-    here, not by a call of ``run_codes``."""
+    as one address table (``state_table``), scalars included: numba wraps every argument on
+    every call, which cost more than a small query; for the same reason the query step is
+    walked here, not by a call of ``run_codes``."""
     i32, i64, f64 = np.int32, np.int64, np.float64
     t, m, sc, o = _TREE, _MIXER, _SCRATCH, _OUT
     tree = Tree(vector(table, t, i32), vector(table, t + 1, i32), vector(table, t + 2, i32),
@@ -187,13 +207,11 @@ def predict_queries(table, n_flat, reused):
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
-    nodes = np.empty(K + 1, np.int32)
-    hashes = np.empty(K + 1, np.uint64)  # their path hashes
-    cand = np.full((K + 1, N_KINDS), -1, np.int32)
-    beyond, lead = np.empty((n_views, K + 1)), np.empty(n_views, np.int64)
+    w = _WORK_AT  # scratch (Work)
+    nodes, hashes, cand = vector(table, w, i32), vector(table, w + 1, np.uint64), matrix(table, w + 2, i32)
+    beyond, lead, ranked = matrix(table, w + 3, f64), vector(table, w + 4, i64), vector(table, w + 5, i32)
     heaviest_beyond(weights, beyond, lead)  # the weights stay as they are: nothing learns here
     top_k = out.top.shape[1]
-    ranked = np.empty(top_k, np.int32)
     mm = _MEMO_AT  # answers remembered (see Memo)
     memo_depth, memo_window, rank_key = vector(table, mm, i32), matrix(table, mm + 1, i32), vector(table, mm + 2, i64)
     memo_said, memo_length, memo_kind = vector(table, mm + 3, i32), vector(table, mm + 4, i32), \
@@ -203,6 +221,7 @@ def predict_queries(table, n_flat, reused):
     qa = _QUERY_AT
     run = vector(table, qa, i32)
     has_actions, empty_action, empty_observation, hold = run[0] != 0, run[1], run[2], run[3] != 0
+    n_flat, reused = run[N_FLAT], run[REUSED] != 0
     action, offsets, view, token = vector(table, qa + 2, i32), vector(table, qa + 3, i64), \
         vector(table, qa + 4, i32), vector(table, qa + 5, i32)
     starts, ends = vector(table, qa + 6, i64), vector(table, qa + 7, i64)
