@@ -267,6 +267,8 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
              (lambda: steps.predict_step([({}, {"cmd": "R"})], {"cmd": "R"}),
               "channel 'cmd' was learned as an action channel, not as an observation channel"),
              (lambda: steps.rank_step([({}, {"pos": 1})], {"cmd": "R"}, k=2.0), "k must be an integer"),
+             (lambda: steps.predict_step([({}, {"pos": [1]})], {"cmd": "R"}), "pos value .1. is not hashable"),
+             (lambda: steps.rank_step([({}, {"pos": 1})], {"cmd": ["R"]}), "cmd value .'R'. is not hashable"),
              (lambda: SequenceModel(max_length="6"), "max_length must be an integer"),
              (lambda: SequenceModel(max_patterns=3), "max_patterns must be an integer")]
     for call, message in cases:

@@ -148,7 +148,8 @@ def single_query(run: np.ndarray, size: int) -> Query:
 def state_table(state: tuple, buffers: Buffers) -> np.ndarray:
     """The arrays of a query run as one address table, in the order ``predict_queries``
     reads them: the tree's fields, the mixer's, the scratch streams', the memo's (the
-    :func:`kept_rows`), then the reports' and the query's. The caller keeps them alive."""
+    :func:`kept_rows`), then the reports', the query's and the scratch arrays'. The caller
+    keeps them alive."""
     return run_table(kept_rows(state, buffers), buffers.out, buffers.query, buffers.work)
 
 
