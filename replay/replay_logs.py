@@ -164,7 +164,7 @@ def _empty_library(spec_path: str | os.PathLike | None, max_length: int, logs: l
         spec = fit_spec(spec, logs, progress)
         notes.append("quantile bins were fitted on the replayed logs themselves")
     vocabulary = prepare_vocabulary(spec, Vocabulary())
-    library = PatternLibrary(max_length, vocabulary=vocabulary)
+    library = PatternLibrary(max_length, vocabulary=vocabulary, action_scopes=spec.action_scopes())
     facts = {"library": None, "params": {"max_length": max_length, "max_patterns": None,
                                          "scoring": "adaptive"}, "provenance": None}
     return _Setup(library, vocabulary, spec, facts, [], notes)

@@ -20,7 +20,7 @@ from typing import Any, Hashable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary, check_parameters
+from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary, check_parameters, check_scopes
 from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor, check_top_k
 from slearn.core.stream import Episode
@@ -44,13 +44,26 @@ class SequenceModel:
         scoring: ``"adaptive"`` (every occurrence counted, contexts weighed by their
             record; the default) or ``"literal"`` (the paper's rule, ``max_length`` 5).
         max_patterns: forget the rarest, oldest patterns beyond this many.
+        action_scopes: the step form's ``{observation channel: [action channels]}``: that
+            channel is predicted from the step's actions on those channels only (a joint
+            from its own command), not from the tuple of every action, which rarely repeats
+            when many channels are commanded at once. Other channels see every action.
     """
 
     def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, scoring: str = "adaptive",
-                 max_patterns: int | None = None) -> None:
+                 max_patterns: int | None = None,
+                 action_scopes: Mapping[str, Iterable[str]] | None = None) -> None:
         if scoring not in SCORINGS:
             raise ParameterError(f"scoring must be one of {', '.join(SCORINGS)}, not {scoring!r}")
         check_parameters(max_length, max_patterns)
+        if action_scopes and scoring == "literal":
+            raise ParameterError("action scopes need the adaptive scoring (the literal rule "
+                                 "predicts a step's observations together)")
+        if action_scopes is not None and not isinstance(action_scopes, Mapping):
+            raise ParameterError("action_scopes must map observation channel names to lists of "
+                                 "action channel names")
+        self._scopes = check_scopes({k: tuple(v) if isinstance(v, (list, tuple, set, frozenset)) else v
+                                     for k, v in (action_scopes or {}).items()}, Vocabulary())
         self.vocabulary = Vocabulary()
         self.scoring = scoring
         self._form: str | None = None
@@ -240,6 +253,7 @@ class SequenceModel:
         model = cls(loaded.library.max_length, loaded.params.get("scoring", "adaptive"),
                     loaded.library.max_patterns)
         model.vocabulary, model.library = loaded.vocabulary, loaded.library
+        model._scopes = getattr(loaded.library, "action_scopes", {})
         model._form = loaded.params.get("form") or "steps"
         return model
 
@@ -254,7 +268,8 @@ class SequenceModel:
         max_length, max_patterns = self._params
         if self.scoring == "literal":
             return LiteralLibrary(max_length, max_patterns)
-        return PatternLibrary(max_length, max_patterns, vocabulary=self.vocabulary)
+        return PatternLibrary(max_length, max_patterns, vocabulary=self.vocabulary,
+                              action_scopes=self._scopes)
 
     def _learn(self, episode: Episode) -> None:
         if self.library is None:

@@ -211,6 +211,78 @@ def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_pat
     assert all(c["accuracy"] >= 0.99 for c in doc["channels"])
 
 
+BUSY_JOINTS, BUSY_BINS = 6, 8
+
+
+def busy_arm_messages(seed: int, trials: int):
+    """A 6-joint arm whose controller commands every joint at every step (a step of -1, 0 or
+    +1 bin each, at random), logged as ros2_control logs it: 3^6 = 729 command tuples, so
+    a joint's context over the whole tuple rarely repeats; its own command's does."""
+    rng = np.random.default_rng(seed)
+    types, names = STORE.types, [f"joint{j + 1}" for j in range(BUSY_JOINTS)]
+    position = rng.integers(BUSY_BINS, size=BUSY_JOINTS)
+
+    def state(t):
+        stamp = types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9)
+        message = types["sensor_msgs/msg/JointState"](
+            header=types["std_msgs/msg/Header"](stamp=stamp, frame_id="base"), name=names,
+            position=(position + 0.5) * 0.1, velocity=np.zeros(0), effort=np.zeros(0))
+        return "/joint_states", t, STORE.serialize_cdr(message, ARM_TYPES["/joint_states"])
+
+    out = [state(T0)]
+    for k in range(trials):
+        t = T0 + (k + 1) * 100_000_000
+        step = rng.integers(-1, 2, size=BUSY_JOINTS)
+        layout = types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+        message = types["std_msgs/msg/Float64MultiArray"](layout=layout, data=step.astype(float))
+        out.append(("/forward_position_controller/commands", t,
+                    STORE.serialize_cdr(message, "std_msgs/msg/Float64MultiArray")))
+        position = np.clip(position + step, 0, BUSY_BINS - 1)
+        out.append(state(t + 50_000_000))
+    return out
+
+
+def test_an_arm_commanding_every_joint_at_once_learns_each_joint_from_its_own_command(tmp_path):
+    """The suggested spec gives each joint the command that drives it (chosen from the log),
+    so each joint's (command, reading) contexts repeat though the command tuples rarely do:
+    frozen replay reaches the ceiling; the same spec without the scopes stays far below."""
+    def record(path, messages):
+        with open(path, "wb") as f:
+            writer = Writer(f)
+            writer.start(profile="ros2")
+            channels = {}
+            for topic, msgtype in ARM_TYPES.items():
+                schema = writer.register_schema(msgtype, "ros2msg",
+                                                STORE.generate_msgdef(msgtype, ros_version=2)[0].encode())
+                channels[topic] = writer.register_channel(topic, "cdr", schema)
+            for topic, time_ns, data in messages:
+                writer.add_message(channels[topic], log_time=time_ns, data=data, publish_time=time_ns)
+            writer.finish()
+        return path
+
+    train = record(tmp_path / "train.mcap", busy_arm_messages(0, 6_000))
+    heldout = record(tmp_path / "heldout.mcap", busy_arm_messages(1, 1_000))
+    spec = tmp_path / "arm.toml"
+    assert invoke("info", train, "--suggest-spec", spec).exit_code == 0
+    channels = load_spec(spec).channels  # used as written
+    scopes = {c.field: c.actions for c in channels if c.role == "observation"}
+    assert len(scopes) == 3  # the suggestion's live observations; each driven by its own command
+    assert all(actions == (f"/forward_position_controller/commands:data[{int(field[-2]) - 1}]",)
+               for field, actions in scopes.items()), scopes
+    unscoped = tmp_path / "unscoped.toml"
+    unscoped.write_text("\n".join(line for line in spec.read_text().splitlines()
+                                  if not line.startswith("actions = ")))
+    accuracy = {}
+    for name, used in (("scoped", spec), ("unscoped", unscoped)):
+        library = tmp_path / f"{name}.parquet"
+        learned = invoke("learn", train, "--spec", used, "-o", library, "-q")
+        assert learned.exit_code == 0, learned.output
+        doc = json.loads(invoke("replay", library, heldout, "--json", "-q").stdout)
+        accuracy[name] = [c["accuracy"] for c in doc["channels"]]
+    assert min(accuracy["scoped"]) >= 0.99  # every joint, from its own command
+    assert max(accuracy["unscoped"]) < 0.9  # the whole command tuple rarely repeats
+
+
 @pytest.mark.shared
 def test_the_pr2_log_lists_every_joint_and_splits_honestly(tmp_path):
     info = invoke("info", PR2_LOG, "--json", "--topics", "/joint_states")

@@ -78,11 +78,18 @@ class PatternLibrary:
         has_actions: whether the stream has action channels (a stream without them is a
             sequence of observations); ``None`` decides from the vocabulary, or else from
             the first episode learned.
+        action_scopes: ``{observation channel: action channels}``: that channel's view sees
+            the step's actions on those channels only (:mod:`slearn.core.views`); the other
+            views see every action. Needs a vocabulary.
     """
 
     def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, max_patterns: int | None = None,
-                 vocabulary: Vocabulary | None = None, has_actions: bool | None = None) -> None:
+                 vocabulary: Vocabulary | None = None, has_actions: bool | None = None,
+                 action_scopes: dict[str, tuple[str, ...]] | None = None) -> None:
         check_parameters(max_length, max_patterns)
+        self.action_scopes = check_scopes(action_scopes, vocabulary)
+        self._scopes = sorted(set(self.action_scopes.values()))  # scope c: its action channels
+        self._in_scope = np.zeros((len(self._scopes), 0), np.uint8)  # see scope_masks
         self.max_length = int(max_length)
         self.max_patterns = None if max_patterns is None else int(max_patterns)
         self.vocabulary = vocabulary
@@ -115,6 +122,33 @@ class PatternLibrary:
     def max_context(self) -> int:
         """Tokens a context holds at most."""
         return 2 * self.max_length if self._has_actions else self.max_length
+
+    @property
+    def n_scopes(self) -> int:
+        """Distinct action scopes of the views (0: every view sees every action)."""
+        return len(self._scopes)
+
+    def scope_masks(self, n_symbols: int) -> np.ndarray:
+        """``in_scope[c, s]``: whether symbol ``s`` (of ``n_symbols``) is an action in scope ``c``
+        (:func:`slearn.core.views.encode`). Symbols past the vocabulary are values never seen:
+        they are in every scope, so a step's scoped actions holding one match no context."""
+        vocabulary = self.vocabulary
+        known = 0 if vocabulary is None else len(vocabulary)
+        if self._in_scope.shape[1] != known:
+            mask = np.zeros((len(self._scopes), known), np.uint8)
+            for symbol, channel, _ in (vocabulary.items() if self._scopes and vocabulary else ()):
+                for c, names in enumerate(self._scopes):
+                    if channel in names:
+                        mask[c, symbol] = 1
+            self._in_scope = mask
+        if n_symbols <= known:
+            return self._in_scope
+        return np.concatenate((self._in_scope, np.ones((len(self._scopes), n_symbols - known), np.uint8)), axis=1)
+
+    def scope_of_view(self, name: str) -> int:
+        """The scope a view's stream shows (-1: every action)."""
+        names = self.action_scopes.get(name)
+        return -1 if names is None else self._scopes.index(names)
 
     @property
     def factored(self) -> bool:
@@ -165,7 +199,8 @@ class PatternLibrary:
             roots = np.array([context_tree.add_root(self.tree, v) for v in range(have, n)], np.int32)
             old = self.streams
             self.streams = views.new_view_state(n, self.max_context, np.concatenate(
-                (old.root if old is not None else np.zeros(0, np.int32), roots)))
+                (old.root if old is not None else np.zeros(0, np.int32), roots)),
+                np.array([self.scope_of_view(name) for name in self.view_names], np.int32))
             if old is not None:
                 self.streams.recent[:have] = old.recent
                 self.streams.filled[:have] = old.filled
@@ -196,7 +231,8 @@ class PatternLibrary:
                 raise ParameterError(f"symbol {int(episode.symbols.max())} is not in the "
                                      "library's vocabulary")
         self._ensure_state()
-        return views.encode(self.tokens, episode, mapping, intern)
+        return views.encode(self.tokens, episode, mapping, intern,
+                            self.scope_masks(len(mapping)) if self._scopes else None)
 
     def learn(self, episode: Episode, new_episode: bool = True) -> None:
         """Learn one episode (its own streams: episodes are never glued together).
@@ -227,7 +263,7 @@ class PatternLibrary:
                   self._entry_bound(), learn, record, baselines, new_episode, self.factored)
         step = 0
         while step < len(codes):
-            step = run_codes(self.tree, self.mixer, state, codes.action, codes.offsets, codes.view,
+            step = run_codes(self.tree, self.mixer, state, codes.action, codes.scoped, codes.offsets, codes.view,
                              codes.token, step, self.clock_array, run, out)
             if step < len(codes):
                 self._make_room(int(codes.offsets[step + 1] - codes.offsets[step]))
@@ -292,9 +328,9 @@ class PatternLibrary:
     def from_export(cls, arrays: dict[str, np.ndarray], *, tokens: TokenTable, clock: int,
                     view_names: list[str], mixer: Mixer, max_length: int,
                     max_patterns: int | None = None, vocabulary: Vocabulary | None = None,
-                    has_actions: bool = True) -> "PatternLibrary":
+                    has_actions: bool = True, action_scopes: dict | None = None) -> "PatternLibrary":
         """Rebuild a library from :meth:`export` output, its tokens, views and weights."""
-        library = cls(max_length, max_patterns, vocabulary, has_actions)
+        library = cls(max_length, max_patterns, vocabulary, has_actions, action_scopes)
         library.tokens = tokens
         library.empty_action = tokens.intern(ACTION, ())
         library.empty_observation = tokens.intern(OBSERVATION, ())
@@ -338,6 +374,33 @@ class PatternLibrary:
         extra = 0 if self.mixer is None else sum(a.nbytes for a in self.mixer)
         extra += 0 if self.streams is None else sum(a.nbytes for a in self.streams)
         return context_tree.nbytes(self.tree) + extra
+
+
+def check_scopes(scopes, vocabulary: Vocabulary | None) -> dict[str, tuple[str, ...]]:
+    """``scopes`` (``{observation channel: action channels}``, or ``None``) checked and
+    normalized: each scope's channels sorted, without repeats.
+
+    Raises:
+        ParameterError: scopes without a vocabulary, or not a mapping of channel names to
+            lists of channel names, or naming a channel the vocabulary gives another role.
+    """
+    if not scopes:
+        return {}
+    if vocabulary is None:
+        raise ParameterError("action scopes need a vocabulary: they name channels")
+    if not isinstance(scopes, dict) or not all(
+            isinstance(k, str) and isinstance(v, (list, tuple)) and all(isinstance(n, str) for n in v)
+            for k, v in scopes.items()):
+        raise ParameterError("action scopes must map observation channel names to lists of "
+                             "action channel names")
+    out = {}
+    for view, names in scopes.items():
+        for name, role in ((view, OBSERVATION_ROLE), *((n, "action") for n in names)):
+            if vocabulary.roles.get(name, role) != role:
+                raise ParameterError(f"action scope of {view!r}: channel {name!r} has the role "
+                                     f"{vocabulary.roles[name]}, not {role}")
+        out[view] = tuple(sorted(set(names)))
+    return dict(sorted(out.items()))
 
 
 def check_parameters(max_length: int, max_patterns: int | None) -> None:

@@ -1,9 +1,10 @@
 """The step loop: predict each observation from its contexts, then learn it.
 
 One compiled kernel, :func:`run_codes`, walks an encoded episode (:mod:`slearn.core.views`)
-step by step. At each step the action is appended to every view's stream; for every
-view that reports, its contexts are looked up in the context tree, the experts of
-:mod:`slearn.core.mixer` propose outcomes and the best-weighted one is recorded; when
+step by step. At each step the action is appended to every view's stream (a view of an
+action scope gets the step's actions in its scope); for every view that reports, its
+contexts are looked up in the context tree, the experts of :mod:`slearn.core.mixer`
+propose outcomes and the best-weighted one is recorded; when
 learning, the experts' weights and the change detector are updated from the outcome
 and every context of the observation counts one more occurrence of it. ``learn=False``
 is a frozen library (held-out evaluation): nothing changes, not even the weights.
@@ -103,17 +104,18 @@ class Run(NamedTuple):
 
 
 @kernel
-def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run, out):
+def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, clock, run, out):
     """Run steps ``step..`` of an encoded episode; return the step it stopped before.
 
-    ``clock`` is ``int64[1]``, advanced by one per learned step.
+    ``clock`` is ``int64[1]``, advanced by one per learned step; ``scoped`` holds the
+    steps' tokens per action scope (``StepCodes``), which views of a scope see.
     """
     parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
     weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
-    recent, filled, held, root = views.recent, views.filled, views.held, views.root
+    recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
@@ -132,7 +134,8 @@ def run_codes(tree, mixer, views, action, offsets, view, token, step, clock, run
                                            or not run.episode_start)
         if push_action:
             for v in range(n_views):
-                recent[v, filled[v] & M] = a
+                c = scope[v]
+                recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
                 filled[v] += 1
         for r in range(r0, r1):
             v, x = view[r], token[r]

@@ -137,6 +137,7 @@ class Predictor:
         self._step_codes: dict = {}  # step -> its flat codes' bytes, see _step_code
         self._answers: dict = {}     # a query's flat codes -> Prediction, for the library's clock
         self._made: dict = {}        # reports -> Prediction, see _single_prediction
+        self._scope_sets: tuple = ((), 0)  # see _scope_sets
         self._clock = -1
         self._ticks = np.full(1, -1, np.int64).data  # the library's clock, read in place
         self._n_tokens = np.zeros(1, np.int64).data  # the token table's count, the same
@@ -255,9 +256,10 @@ class Predictor:
     def _prepare_single(self, size: int) -> None:
         """Room in the single query's buffers for ``size`` codes, and their address table
         pointing at the library's current tree and mixer."""
-        if size > self._capacity:
-            self._use_single(self._single._replace(query=single_query(self._single.query.run, size)))
         library = self.library
+        if size > self._capacity:
+            self._use_single(self._single._replace(query=single_query(self._single.query.run, size,
+                                                                      library.n_scopes)))
         if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
             self._single_table = state_table((library.tree, library.mixer), self._single)
             self._single_state = (library.tree, library.mixer)
@@ -284,7 +286,7 @@ class Predictor:
             forget(work.memo)
             self._batch_rows = kept_rows((library.tree, library.mixer), work)
             self._batch_state = (library.tree, library.mixer)
-        query = work.query._replace(action=codes.action, offsets=codes.offsets, view=codes.view,
+        query = work.query._replace(action=codes.action, scoped=codes.scoped, offsets=codes.offsets, view=codes.view,
                                     token=codes.token, starts=starts, ends=ends)
         query.run[N_FLAT], query.run[REUSED] = -1, 0
         predict_queries(run_table(self._batch_rows, out, query, work.work))
@@ -386,7 +388,9 @@ class Predictor:
                 self._batch_state = (None, None)
                 buffers = kept_buffers(library, 1, self.top_k)
                 out, self._said = packed_reports(buffers.out)
-                self._use_single(buffers._replace(out=out, query=single_query(buffers.query.run, 64)))
+                self._use_single(buffers._replace(out=out, query=single_query(buffers.query.run, 64,
+                                                                              library.n_scopes)))
+                self._scope_sets = _scope_sets(library)
         if library.clock != self._clock:
             self._clock, self._answers = library.clock, {}
             if compiled:
@@ -463,15 +467,21 @@ class Predictor:
         return code
 
     def _codes_of(self, steps: list[Step], view_of) -> bytes:
-        """Steps as flat codes, the bytes of ``int32``s: per step its action token, its
-        number of observation tokens, then a view and a token for each; ``view_of`` maps
-        symbols to views (``None``: one joint view)."""
+        """Steps as flat codes, the bytes of ``int32``s: per step its action token, the
+        token of its actions in each action scope, its number of observation tokens, then a
+        view and a token for each; ``view_of`` maps symbols to views (``None``: one joint
+        view)."""
         token, known = self._token, self._token_of.get
+        scopes, n_known = self._scope_sets
         flat: list[int] = []
         for acts, obs in steps:
             key = (ACTION, acts)
             t = known(key)
             flat.append(t if t is not None else token(*key))
+            for members in scopes:  # (symbols never seen are in every scope: see scope_masks)
+                key = (ACTION, tuple(a for a in acts if a in members or a >= n_known))
+                t = known(key)
+                flat.append(t if t is not None else token(*key))
             groups = (((0, obs),) if view_of is None else _by_view(obs, view_of)) if obs else ()
             flat.append(len(groups))
             for v, group in groups:
@@ -492,6 +502,16 @@ class Predictor:
         out = library.run(codes, learn=False, record=True, top_k=self.top_k)
         first = int(codes.offsets[-2])
         return self._single_prediction(Reports(*(a[first:first + n_views] for a in out)))
+
+
+def _scope_sets(library) -> tuple[list[frozenset], int]:
+    """The action symbols of each of ``library``'s action scopes, and how many symbols its
+    vocabulary knows (those past it are in every scope)."""
+    if not getattr(library, "n_scopes", 0):
+        return [], 0
+    n_known = len(library.vocabulary)
+    masks = library.scope_masks(n_known)
+    return [frozenset(np.flatnonzero(row).tolist()) for row in masks], n_known
 
 
 def check_top_k(top_k, name: str = "top_k") -> None:

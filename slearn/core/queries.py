@@ -66,6 +66,7 @@ class Query(NamedTuple):
     run: np.ndarray      # int32[6]
     flat: np.ndarray     # int32
     action: np.ndarray   # int32 per step
+    scoped: np.ndarray   # int32 (steps, scopes): see StepCodes
     offsets: np.ndarray  # int64 per step + 1
     view: np.ndarray     # int32 per observation
     token: np.ndarray    # int32 per observation
@@ -125,6 +126,7 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     query and view), within ``MEMO_BYTES`` (``memo_slots``)."""
     n_views = len(library.view_names)
     n = queries * n_views
+    scopes = library.n_scopes
     run = np.array([library.has_actions, library.empty_action, library.empty_observation, library.factored,
                     -1, 0], np.int32)
     top_k = max(top_k, 1)
@@ -132,16 +134,18 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     k = library.max_context + 1
     work = Work(np.zeros(k, np.int32), np.zeros(k, np.uint64), np.full((k, N_KINDS), -1, np.int32),
                 np.zeros((n_views, k)), np.zeros(n_views, np.int64), np.zeros(top_k, np.int32))
-    return Buffers(new_view_state(n_views, library.max_context, library.streams.root), new_reports(n, top_k),
-                   new_memo(slots, library.max_context, top_k),
-                   Query(run, _NO_I32, _NO_I32, _NO_I64, _NO_I32, _NO_I32, _NO_I64, _NO_I64), work)
+    return Buffers(new_view_state(n_views, library.max_context, library.streams.root, library.streams.scope),
+                   new_reports(n, top_k), new_memo(slots, library.max_context, top_k),
+                   Query(run, _NO_I32, _NO_I32, np.zeros((0, scopes), np.int32), _NO_I64, _NO_I32, _NO_I32,
+                         _NO_I64, _NO_I64), work)
 
 
-def single_query(run: np.ndarray, size: int) -> Query:
+def single_query(run: np.ndarray, size: int, scopes: int) -> Query:
     """A single query's buffers for ``size`` flat codes at least (capacity doubles): its
-    steps take fewer entries than its codes."""
+    steps take fewer entries than its codes (``scopes``: the library's action scopes)."""
     n = 1 << max(size - 1, 1).bit_length()
-    return Query(run, np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n + 1, np.int64),
+    return Query(run, np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros((n, scopes), np.int32),
+                 np.zeros(n + 1, np.int64),
                  np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(1, np.int64), np.zeros(1, np.int64))
 
 
@@ -195,7 +199,7 @@ def predict_queries(table):
                 vector(table, t + 15, i64))
     mixer = Mixer(cube(table, m, f64), matrix(table, m + 1, f64), vector(table, m + 2, i32))
     scratch = ViewState(matrix(table, sc, i32), vector(table, sc + 1, i64), vector(table, sc + 2, i32),
-                        vector(table, sc + 3, i32))
+                        vector(table, sc + 3, i32), vector(table, sc + 4, i32))
     out = Reports(vector(table, o, i32), vector(table, o + 1, i32), vector(table, o + 2, np.int8),
                   vector(table, o + 3, f64), vector(table, o + 4, f64), matrix(table, o + 5, i32),
                   matrix(table, o + 6, f64), vector(table, o + 7, np.bool_), vector(table, o + 8, i32),
@@ -204,7 +208,7 @@ def predict_queries(table):
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     outcome, count, last_seen, fresh, nxt = tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next
     weights, epoch = mixer.weight, mixer.epoch
-    recent, filled, held, root = scratch.recent, scratch.filled, scratch.held, scratch.root
+    recent, filled, held, root, scope = scratch.recent, scratch.filled, scratch.held, scratch.root, scratch.scope
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
@@ -223,12 +227,12 @@ def predict_queries(table):
     run = vector(table, qa, i32)
     has_actions, empty_action, empty_observation, hold = run[0] != 0, run[1], run[2], run[3] != 0
     n_flat, reused = run[N_FLAT], run[REUSED] != 0
-    action, offsets, view, token = vector(table, qa + 2, i32), vector(table, qa + 3, i64), \
-        vector(table, qa + 4, i32), vector(table, qa + 5, i32)
-    starts, ends = vector(table, qa + 6, i64), vector(table, qa + 7, i64)
+    action, scoped = vector(table, qa + 2, i32), matrix(table, qa + 3, i32)
+    offsets, view, token = vector(table, qa + 4, i64), vector(table, qa + 5, i32), vector(table, qa + 6, i32)
+    starts, ends = vector(table, qa + 7, i64), vector(table, qa + 8, i64)
     n_queries = len(starts)
     if n_flat >= 0:  # one query: its steps into the buffers, which hold as many codes
-        _steps_of(vector(table, qa + 1, i32), n_flat, action, offsets, view, token, starts, ends)
+        _steps_of(vector(table, qa + 1, i32), n_flat, action, scoped, offsets, view, token, starts, ends)
         n_queries = 1
     for i in range(n_queries):
         s, e = starts[i], ends[i]
@@ -239,7 +243,8 @@ def predict_queries(table):
             push_action = has_actions and (step > s or a != empty_action)
             if push_action:
                 for v in range(n_views):
-                    recent[v, filled[v] & M] = a
+                    c = scope[v]
+                    recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
                     filled[v] += 1
             first_obs, end_obs = offsets[step], offsets[step + 1]
             for r in range(first_obs, end_obs):
@@ -255,7 +260,8 @@ def predict_queries(table):
         a = action[e]
         if has_actions and (e > s or a != empty_action):
             for v in range(n_views):
-                recent[v, filled[v] & M] = a
+                c = scope[v]
+                recent[v, filled[v] & M] = a if c < 0 else scoped[e, c]
                 filled[v] += 1
         for v in range(n_views):
             depth = min(filled[v], K)
@@ -373,20 +379,24 @@ def _claim_window(recent, filled, v, depth, memo_depth, memo_window, slot):
 
 
 @helper
-def _steps_of(flat, n_flat, action, offsets, view, token, starts, ends):
+def _steps_of(flat, n_flat, action, scoped, offsets, view, token, starts, ends):
     """The first ``n_flat`` flat codes (``Predictor._codes_of``) as the steps of one
-    query (actions, offsets, views, tokens) and its bounds: every step but the last is its
-    history."""
+    query (actions, scoped actions, offsets, views, tokens) and its bounds: every step but
+    the last is its history."""
     j, r, step = 0, 0, 0
+    n_scopes = scoped.shape[1]
     offsets[0] = 0
     while j < n_flat:
         action[step] = flat[j]
-        for k in range(flat[j + 1]):
-            view[r] = flat[j + 2 + 2 * k]
-            token[r] = flat[j + 3 + 2 * k]
+        for c in range(n_scopes):
+            scoped[step, c] = flat[j + 1 + c]
+        j += 1 + n_scopes
+        for k in range(flat[j]):
+            view[r] = flat[j + 1 + 2 * k]
+            token[r] = flat[j + 2 + 2 * k]
             r += 1
         offsets[step + 1] = r
-        j += 2 + 2 * flat[j + 1]
+        j += 1 + 2 * flat[j]
         step += 1
     starts[0] = 0
     ends[0] = step - 1

@@ -15,6 +15,12 @@ readings. Contexts are runs of this stream just before an observation of the vie
 
 :func:`encode` turns an episode into :class:`StepCodes`: per step the action token, and
 the ``(view, observation token)`` pairs of the views that reported.
+
+Action scopes. By default a view's stream shows every action of a step, one tuple. A view
+may instead see a *scope*: the step's actions on some action channels only (a joint's own
+command), so that a robot commanding many joints at once, whose command tuples rarely
+repeat, still repeats each joint's (command, reading) contexts. :func:`encode` then also
+gives, per step and scope, the token of the step's actions in that scope.
 """
 
 from __future__ import annotations
@@ -39,13 +45,16 @@ class StepCodes(NamedTuple):
     """An episode as the views see it.
 
     ``action[s]`` is step ``s``'s action token; the views that reported at step ``s`` are
-    ``view[offsets[s]:offsets[s + 1]]`` with observation tokens ``token[...]``, in view order.
+    ``view[offsets[s]:offsets[s + 1]]`` with observation tokens ``token[...]``, in view order;
+    ``scoped[s, c]`` is the token of step ``s``'s actions in scope ``c`` (no columns when
+    the library has no scopes).
     """
 
     action: np.ndarray   # int32 per step
     offsets: np.ndarray  # int64, steps + 1
     view: np.ndarray     # int32 per report
     token: np.ndarray    # int32 per report
+    scoped: np.ndarray = np.zeros((0, 0), np.int32)  # int32 (steps, scopes): see encode
 
     def __len__(self) -> int:
         return len(self.action)
@@ -57,26 +66,34 @@ class StepCodes(NamedTuple):
 
 
 def encode(table: TokenTable, episode: Episode, view_of_symbol: np.ndarray,
-           intern: bool = True) -> StepCodes:
+           intern: bool = True, in_scope: np.ndarray | None = None) -> StepCodes:
     """Intern the episode's action and observation tuples and group them by view.
 
     ``view_of_symbol[s]`` is the view of observation symbol ``s`` (``NO_VIEW`` for actions
     and symbols of no view, which are ignored); it must cover every symbol of the episode.
     ``intern=False`` only looks tokens up (``UNKNOWN`` for a tuple never seen).
+    ``in_scope[c, s]`` (``uint8``, covering every symbol) says whether action symbol ``s``
+    is in scope ``c``; each scope's tokens go to ``scoped``.
     """
     n_steps = len(episode)
+    scopes = np.zeros((0, len(view_of_symbol)), np.uint8) if in_scope is None else in_scope
+    n_scopes = len(scopes)
     if intern:
-        table.reserve(2 * n_steps + episode.n_events + 2, 2 * episode.n_events + 2)
+        table.reserve((2 + n_scopes) * n_steps + episode.n_events + 2,
+                      (2 + n_scopes) * episode.n_events + 2)
     codes = StepCodes(np.empty(n_steps, np.int32), np.zeros(n_steps + 1, np.int64),
-                      np.empty(episode.n_events, np.int32), np.empty(episode.n_events, np.int32))
+                      np.empty(episode.n_events, np.int32), np.empty(episode.n_events, np.int32),
+                      np.empty((n_steps, n_scopes), np.int32))
     used = _encode(table.arrays, episode.symbols, episode.step_offsets, episode.n_actions,
                    np.asarray(view_of_symbol, np.int32), intern, codes.action, codes.offsets,
-                   codes.view, codes.token)
-    return StepCodes(codes.action, codes.offsets, codes.view[:used].copy(), codes.token[:used].copy())
+                   codes.view, codes.token, scopes, codes.scoped)
+    return StepCodes(codes.action, codes.offsets, codes.view[:used].copy(), codes.token[:used].copy(),
+                     codes.scoped)
 
 
 @kernel
-def _encode(table, symbols, step_offsets, n_actions, view_of, intern, action, offsets, view, token):
+def _encode(table, symbols, step_offsets, n_actions, view_of, intern, action, offsets, view, token,
+            in_scope, scoped):
     buf = np.empty(max(len(symbols), 1), np.int32)
     views = np.empty(max(len(symbols), 1), np.int32)
     n = 0
@@ -84,6 +101,13 @@ def _encode(table, symbols, step_offsets, n_actions, view_of, intern, action, of
         start, end = step_offsets[s], step_offsets[s + 1]
         split = start + n_actions[s]
         action[s] = _token(table, ACTION, symbols, start, split, intern)
+        for c in range(in_scope.shape[0]):
+            m = 0
+            for i in range(start, split):
+                if in_scope[c, symbols[i]]:
+                    buf[m] = symbols[i]
+                    m += 1
+            scoped[s, c] = _token(table, ACTION, buf, 0, m, intern)
         seen = 0
         for i in range(split, end):  # the step's views, in order of their first symbol
             v = view_of[symbols[i]]
@@ -138,13 +162,15 @@ class ViewState(NamedTuple):
     at or above the longest context (:func:`ring_width`), so that a token's place is a mask,
     not a division (the divisions by the context length were a fifth of a batch query's
     time); ``held[v]`` its last observation token (-1 before the first); ``root[v]`` its root
-    node in the context tree.
+    node in the context tree; ``scope[v]`` the scope whose actions its stream shows
+    (``StepCodes.scoped``; -1: every action of the step).
     """
 
     recent: np.ndarray  # int32 (views, ring_width(max_context))
     filled: np.ndarray  # int64 (views,)
     held: np.ndarray    # int32 (views,)
     root: np.ndarray    # int32 (views,)
+    scope: np.ndarray   # int32 (views,)
 
 
 def ring_width(max_context: int) -> int:
@@ -152,10 +178,13 @@ def ring_width(max_context: int) -> int:
     return 1 << max(int(max_context) - 1, 0).bit_length()
 
 
-def new_view_state(views: int, max_context: int, roots: np.ndarray) -> ViewState:
-    """View streams at the start of an episode."""
+def new_view_state(views: int, max_context: int, roots: np.ndarray,
+                   scope: np.ndarray | None = None) -> ViewState:
+    """View streams at the start of an episode (``scope``: see :class:`ViewState`; default
+    every view sees every action)."""
     return ViewState(np.zeros((views, ring_width(max_context)), np.int32), np.zeros(views, np.int64),
-                     np.full(views, -1, np.int32), np.asarray(roots, np.int32).copy())
+                     np.full(views, -1, np.int32), np.asarray(roots, np.int32).copy(),
+                     np.full(views, -1, np.int32) if scope is None else np.asarray(scope, np.int32).copy())
 
 
 def restart(state: ViewState) -> None:

@@ -29,7 +29,8 @@ Patterns come in the order they were first seen. A literal library (the paper's 
 :mod:`slearn.core.literal`) has no view rows; its patterns are ``O A O ... O`` runs counted at
 parse boundaries, ``parent`` speeding up loading. The schema's key-value metadata
 ``slearn`` is a small JSON document (read cheaply with ``pq.read_schema``): ``format``,
-``version``, learner ``params`` (max_length, max_patterns, scoring, factored, has_actions),
+``version``, learner ``params`` (max_length, max_patterns, scoring, factored, has_actions,
+and from version 3 ``action_scopes`` when a view sees only some action channels),
 ``library`` (clock, forgotten, patterns, channels with roles, rows per table), ``spec``
 (fitted edges included, or null) and ``provenance``. Columns are zstd-compressed; pages
 carry checksums. Files are written atomically and deterministically: the same library
@@ -51,12 +52,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slearn.core.library import PatternLibrary
+from slearn.core.library import PatternLibrary, check_scopes
 from slearn.core.literal import LiteralLibrary
 from slearn.core.mixer import Mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
-from slearn.errors import InputError, LibraryFormatError
+from slearn.errors import InputError, LibraryFormatError, ParameterError
 from slearn.io.files import atomic_write, check_output, regular_file
 from slearn.io.library_header import FORMAT_NAME, FORMAT_VERSION, TABLES, parse_header
 from slearn.io.spec import Bins, Spec
@@ -165,10 +166,12 @@ def save_library(path: str | os.PathLike, library: PatternLibrary | LiteralLibra
 
 def library_params(library: PatternLibrary | LiteralLibrary) -> dict:
     """The parameters a library carries itself."""
-    params = {"max_length": library.max_length, "max_patterns": library.max_patterns,
-              "scoring": scoring_of(library)}
+    params: dict[str, Any] = {"max_length": library.max_length, "max_patterns": library.max_patterns,
+                              "scoring": scoring_of(library)}
     if isinstance(library, PatternLibrary):
         params.update(factored=library.factored, has_actions=library.has_actions)
+        if library.action_scopes:
+            params["action_scopes"] = {view: list(names) for view, names in library.action_scopes.items()}
     return params
 
 
@@ -534,10 +537,15 @@ def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabul
     if len(lengths) and (lengths.min() < 2 or lengths.max() > max_context + 1
                          or views.min() < 0 or views.max() >= len(names)):
         raise LibraryFormatError(f"{path}: a pattern does not fit the library's views and max_length")
+    try:
+        scopes = check_scopes(params.get("action_scopes"), vocabulary if params.get("factored") else None)
+    except ParameterError as err:
+        raise LibraryFormatError(f"{path}: field params.action_scopes: {err}") from err
     return PatternLibrary.from_export(
         arrays, tokens=tokens, clock=int(facts["clock"]), view_names=names, mixer=mixer,
         max_length=max_length, max_patterns=params["max_patterns"],
-        vocabulary=vocabulary if params.get("factored") else None, has_actions=has_actions)
+        vocabulary=vocabulary if params.get("factored") else None, has_actions=has_actions,
+        action_scopes=scopes)
 
 
 def read_info(path: str | os.PathLike) -> dict:

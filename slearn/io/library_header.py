@@ -27,7 +27,9 @@ from slearn.core.library import MAX_PATTERNS as MAX_BOUND
 from slearn.errors import LibraryFormatError, SpecError
 
 FORMAT_NAME = "slearn-library"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+OLDEST_READ = 2
+"""The oldest format version read: version 2 is version 3 without action scopes."""
 TABLES = ("vocabulary", "token", "view", "pattern")
 
 MAX_HEADER_BYTES = 64 << 20
@@ -94,6 +96,14 @@ def _pair(value: Any, where: str) -> str | None:
     return None
 
 
+def _scopes(value: Any, where: str) -> str | None:
+    """``{observation channel: [action channel, ...]}``."""
+    for view, names in value.items():
+        if not (isinstance(names, list) and len(names) <= 1 << 20 and all(isinstance(n, str) for n in names)):
+            return _wrong(f"{where}.{view}", names, "must be a list of action channel names")
+    return None
+
+
 def _sha256(value: Any, where: str) -> str | None:
     return None if _SHA256.fullmatch(value) else _wrong(where, value, "must be 64 lowercase hex digits")
 
@@ -130,6 +140,7 @@ HEADER: dict[str, Field] = {
         "factored": Field("bool", required=False, since=2),
         "has_actions": Field("bool", required=False, since=2),
         "form": Field("str", required=False, choices=("sequence", "steps"), since=2),
+        "action_scopes": Field("object", required=False, check=_scopes, since=3),
     }),
     "library": Field("object", fields={
         "clock": Field("int", low=0, high=MAX_CLOCK),
@@ -181,10 +192,10 @@ def validate_header(doc: Any, path: str | PathLike) -> None:
     if version > FORMAT_VERSION:
         raise LibraryFormatError(f"{path}: library format version {version} is newer than this "
                                  f"slearn {__version__} reads (up to {FORMAT_VERSION}): upgrade slearn")
-    if version < FORMAT_VERSION:
+    if version < OLDEST_READ:
         raise LibraryFormatError(f"{path}: library format version {version} (slearn 0.1) counted "
-                                 f"patterns only at parse boundaries; this slearn reads format "
-                                 f"{FORMAT_VERSION}: learn the logs again with `slearn learn`")
+                                 f"patterns only at parse boundaries; this slearn reads formats "
+                                 f"{OLDEST_READ}-{FORMAT_VERSION}: learn the logs again with `slearn learn`")
     if _depth(doc) > MAX_DEPTH:
         raise _error(path, f"the header nests deeper than {MAX_DEPTH} levels")
     problem = _problem(doc, HEADER, "", version) or _consistency(doc)

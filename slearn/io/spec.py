@@ -21,6 +21,7 @@ A spec is a TOML file::
     # wrap = true          # angles: values wrap into the range before binning
     # unit = "rad"         # how bins are labelled: "rad" and "deg" show degrees
     # mode = "change"      # this entry only: an event when its symbol changes
+    # actions = ["/pointer/command"]  # observations only: predicted from these actions alone
 
     [[channel]]
     topic = "/pointer/command"
@@ -43,6 +44,12 @@ bins, unbounded, the symbol is ``floor((x - origin) / width)``), ``range`` + ``c
 ``edges[k-1] <= x < edges[k]``), ``quantiles = n`` (``n`` bins with edges fitted on
 training logs, see :func:`slearn.io.serialize.fit_spec`). Bin symbols are bin indices
 (``int``); :meth:`Spec.value_label` shows them as value ranges (``[50°, 60°)``).
+
+Action scopes: an observation entry's ``actions = [names]`` (entry names of action entries)
+makes its channel see the step's actions on those channels only (a joint's own command; see
+:mod:`slearn.core.views`): a robot commanding many joints at once gives command tuples that
+rarely repeat, while each joint's own (command, reading) pairs do. Without it an
+observation sees every action.
 
 Modes: the file's ``mode`` is the default of every entry; an entry's own ``mode``
 (``"message"`` or ``"change"``) overrides it. ``"tick"`` is for the whole file only.
@@ -76,7 +83,7 @@ CHANNEL_MODES = ("message", "change")
 DEFAULT_MODE = "message"
 
 _BIN_KEYS = ("width", "origin", "range", "count", "edges", "quantiles", "wrap", "clip", "unit")
-_ENTRY_KEYS = ("topic", "field", "role", "name", "values", "mode", "max_symbols") + _BIN_KEYS
+_ENTRY_KEYS = ("topic", "field", "role", "name", "values", "mode", "max_symbols", "actions") + _BIN_KEYS
 _SPEC_KEYS = ("mode", "tick_ms", "tick_ns", "phase_ms", "phase_ns", "channel")
 _DEGREE_UNITS = {"rad": 180.0 / math.pi, "deg": 1.0}
 
@@ -252,6 +259,7 @@ class ChannelSpec:
     symbolizer: Symbolizer = dataclasses.field(default_factory=Categorical)
     max_symbols: int | None = None
     mode: str | None = None
+    actions: tuple[str, ...] | None = None  # an observation's action scope (entry names)
 
     @property
     def path(self) -> FieldPath:
@@ -270,6 +278,8 @@ class ChannelSpec:
                "name": self.name, **limit, **self.symbolizer.to_dict()}
         if self.mode is not None:
             out["mode"] = self.mode
+        if self.actions is not None:
+            out["actions"] = list(self.actions)
         return out
 
     def value_label(self, value: Any) -> str:
@@ -292,6 +302,10 @@ class Spec:
     def topics(self) -> list[str]:
         """Topics the spec reads, in spec order, without repeats."""
         return list(dict.fromkeys(c.topic for c in self.channels))
+
+    def action_scopes(self) -> dict[str, tuple[str, ...]]:
+        """``{observation channel: its action channels}`` of the entries that name them."""
+        return {c.name: c.actions for c in self.channels if c.actions is not None}
 
     def channel_mode(self, index: int) -> str:
         """The event mode of entry ``index``: its own, else the file's."""
@@ -405,6 +419,14 @@ def _build_spec(data: dict, source: str) -> Spec:
     name, n = Counter(c.name for c in channels).most_common(1)[0]
     if n > 1:
         raise SpecError(f"{source}: two entries are named {name!r}: give them distinct `name`s")
+    roles = {c.name: c.role for c in channels}
+    known = ", ".join(n for n, r in roles.items() if r == ACTION) or "none"
+    for i, c in enumerate(channels):
+        for action in c.actions or ():
+            if roles.get(action) != ACTION:
+                raise SpecError(f"{_where(source, i, entries[i])}: `actions` names {action!r}, which is "
+                                f"{'an observation entry' if action in roles else 'no entry'}: give "
+                                f"the names of action entries ({known})")
     if mode == "tick" and any(c.mode for c in channels):
         raise SpecError(f"{source}: mode \"tick\" samples every entry at each tick: drop the "
                         f"entries' own `mode`")
@@ -490,8 +512,18 @@ def _build_entry(entry: Any, i: int, topics: Counter[str], source: str) -> Chann
                         f"{_shown(mode)}")
     max_symbols = _max_symbols(entry, where)
     limit = max_symbols or MAX_SYMBOLS
+    actions = entry.get("actions")
+    if actions is not None:
+        if entry["role"] != OBSERVATION:
+            raise SpecError(f"{where}: `actions` belongs to observation entries (the actions that "
+                            f"drive them); drop it from this action entry")
+        if not isinstance(actions, list) or not all(isinstance(a, str) and a for a in actions) \
+                or len(actions) > MAX_CHANNELS:
+            raise SpecError(f"{where}: `actions` must be a list of action entry names, not {_shown(actions)}")
+        actions = tuple(dict.fromkeys(actions))
     return ChannelSpec(entry["topic"], fld, entry["role"], name,
-                       _build_symbolizer(entry, where, limit), max_symbols=max_symbols, mode=mode)
+                       _build_symbolizer(entry, where, limit), max_symbols=max_symbols, mode=mode,
+                       actions=actions)
 
 
 def _max_symbols(entry: dict, where: str) -> int | None:

@@ -162,9 +162,14 @@ def _new_job(paths: Sequence[str | os.PathLike], spec: Spec | None, max_length: 
     scoring = scoring or DEFAULT_SCORING
     library: PatternLibrary | LiteralLibrary
     if scoring == "literal":
+        if spec.action_scopes():
+            raise SpecError(f"{spec.source}: `actions` scopes need the adaptive scoring (the literal "
+                            f"rule predicts a step's observations together): drop them or the "
+                            f"--scoring literal")
         library = LiteralLibrary(max_length or literal.DEFAULT_MAX_LENGTH, max_patterns)
     else:
-        library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns, vocabulary=vocabulary)
+        library = PatternLibrary(max_length or DEFAULT_MAX_LENGTH, max_patterns, vocabulary=vocabulary,
+                                 action_scopes=spec.action_scopes())
     return _Job(library, vocabulary, spec, {"scoring": scoring}, pieces=pieces)
 
 

@@ -90,7 +90,7 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
 
 
 def _incompatibility(a: LoadedLibrary, b: LoadedLibrary) -> str | None:
-    for key in ("scoring", "max_length", "max_patterns", "factored", "has_actions"):
+    for key in ("scoring", "max_length", "max_patterns", "factored", "has_actions", "action_scopes"):
         if a.params.get(key) != b.params.get(key):
             return f"{key} {a.params.get(key)!r} vs {b.params.get(key)!r}"
     if (a.spec is None) != (b.spec is None):
@@ -202,7 +202,7 @@ def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable
                                         view_names=names, mixer=mixer, max_length=a.max_length,
                                         max_patterns=a.max_patterns,
                                         vocabulary=vocabulary if a.factored else None,
-                                        has_actions=a.has_actions)
+                                        has_actions=a.has_actions, action_scopes=a.action_scopes)
     if len(eb["view"]):
         eb = {**eb, "view": view_map[eb["view"]], "pattern_tokens": token_map[eb["pattern_tokens"]]}
     merged.add_export(eb, shift=a.clock)

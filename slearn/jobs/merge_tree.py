@@ -158,7 +158,8 @@ def learn_log(path: str, spec: dict, source: str, max_length: int,
     check_visible(path)
     spec_object = Spec.from_dict(spec, source)
     vocabulary = Vocabulary()
-    library = PatternLibrary(max_length, None, vocabulary=vocabulary)
+    library = PatternLibrary(max_length, None, vocabulary=vocabulary,
+                             action_scopes=spec_object.action_scopes())
     stats: dict[str, Any] = {"path": path, "episodes": 0, "steps": 0, "events": 0, "truncated": None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

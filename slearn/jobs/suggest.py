@@ -286,3 +286,50 @@ def _entry_lines(candidate: Candidate, live: bool) -> list[str]:
              f"field = {_toml_str(info.path)}", f'role = "{candidate.role}"', *candidate.keys]
     note = [f"# {info.path}: {candidate.why}; e.g. {examples}"]
     return note + (entry if live else [f"# {line}" for line in entry])
+
+
+def with_action_scopes(text: str, paths: Iterable[str], window=None) -> str:
+    """``text`` (a suggested spec) with ``actions = [...]`` on each live observation entry
+    that recorded steps show to depend on only some of the action entries
+    (:func:`slearn.core.action_scopes.suggest_scopes`, on the first steps of ``paths``).
+    A spec with fewer than two action entries is returned as it is."""
+    import tomllib
+    import warnings
+
+    from slearn.errors import SpecError
+    from slearn.io.spec import _build_spec
+
+    try:
+        spec = _build_spec(tomllib.loads(text), "<suggested>")
+    except SpecError:  # no entry at all: nothing to scope (the caller says what is missing)
+        return text
+    if sum(c.role == "action" for c in spec.channels) < 2 or not spec.fitted \
+            or not any(c.role == "observation" for c in spec.channels):
+        return text
+    from slearn.core.action_scopes import MAX_STEPS, suggest_scopes  # (reading compiles kernels)
+    from slearn.core.vocabulary import Vocabulary
+    from slearn.io.serialize import read_pieces
+
+    vocabulary, kept, steps = Vocabulary(), [], 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the log's warnings come with learning, not here
+        for _, piece, *_ in read_pieces(list(paths), spec, vocabulary, False, window):
+            kept.append(piece)
+            steps += len(piece)
+            if steps >= MAX_STEPS:
+                break
+    scopes = suggest_scopes(kept, vocabulary)
+    if not scopes:
+        return text
+    lines, out, entry = text.split("\n"), [], -1
+    for line in lines:
+        out.append(line)
+        if line == "[[channel]]":
+            entry += 1
+        elif entry >= 0 and line.startswith("role = ") and spec.channels[entry].name in scopes:
+            names = scopes[spec.channels[entry].name]
+            out.append(f"actions = [{', '.join(_toml_str(n) for n in names)}]  # its own command"
+                       f"{'s' if len(names) > 1 else ''}: the readings depend on "
+                       f"{'these' if len(names) > 1 else 'this'} alone (BIC on the first steps)"
+                       if names else "actions = []  # no command changes these readings (BIC on the first steps)")
+    return "\n".join(out)
