@@ -1,8 +1,9 @@
 """Pattern libraries on disk: one Parquet file holds a library, its vocabulary and its spec.
 
-Layout (format ``slearn-library``, version 2). Four tables share one schema; a row
-belongs to the table named in its ``table`` column, each table has its own row groups
-(written in this order) and the columns of the other tables are null::
+Layout (format ``slearn-library``, version 3; version 2 files, which have no action
+scopes, are read too). Four tables share one schema; a row belongs to the table named in
+its ``table`` column, each table has its own row groups (written in this order) and the
+columns of the other tables are null::
 
     column          type           table       holds
     table           string         all         "vocabulary" | "token" | "view" | "pattern"

@@ -72,6 +72,8 @@ class LibraryDescription(dict):
                  f"  patterns by {self['length_unit']}: {histogram or '-'} "
                  f"(mean {self['mean_length']:.2f})",
                  f"  vocabulary: {self['vocabulary']['symbols']} symbols"]
+        for view, actions in (params.get("action_scopes") or {}).items():
+            lines.insert(-1, f"  {view} sees the actions of: {', '.join(actions) or 'none'}")
         for channel in self["vocabulary"]["channels"]:
             values = ", ".join(map(str, channel.get("labels", channel["values"])[:12]))
             more = " ..." if channel["n_values"] > 12 else ""
