@@ -100,6 +100,47 @@ def test_a_reading_no_command_drives_gets_an_empty_scope():
     assert suggest_scopes([episode], model.vocabulary) == {"p0": ("c0",), "p1": ()}
 
 
+def one_joint_at_a_time(joints: int, positions: int, seed: int, steps: int) -> list:
+    """Steps of an arm that moves one random joint by -1 or +1 per step (every joint's
+    command is given, 0 for those that stay): the pointer arm's way, on a wrapped dial."""
+    rng = np.random.default_rng(seed)
+    position, out = [0] * joints, []
+    for _ in range(steps):
+        j, d = int(rng.integers(joints)), int(rng.choice([-1, 1]))
+        position[j] = (position[j] + d) % positions
+        out.append(({f"c{i}": d if i == j else 0 for i in range(joints)},
+                    {f"p{i}": position[i] for i in range(joints)}))
+    return out
+
+
+def test_the_choice_finds_own_commands_when_a_reading_takes_many_values():
+    """36 positions, 3 of which follow any one: the choice must not charge a context for
+    the 33 it never meets (BIC, which does, kept every joint from its command)."""
+    model = SequenceModel()
+    walk = one_joint_at_a_time(3, 36, 0, 4000)
+    model.learn_steps(walk[:10])
+    episode = Episode.from_steps([model._step_symbols(s, learn=True) for s in walk])
+    assert suggest_scopes([episode], model.vocabulary) == {f"p{j}": (f"c{j}",) for j in range(3)}
+
+
+def test_a_view_that_sees_no_actions_predicts_from_its_own_readings():
+    """Half the steps move the joint, so its best guess without the commands is that it
+    stays: a view of no actions holds that frozen (a constant action token in its stream
+    made the newest reading after it the answer, right online and wrong frozen: 0.06)."""
+    train, held_out = one_joint_at_a_time(2, 12, 0, 5000), one_joint_at_a_time(2, 12, 1, 1000)
+    blind = SequenceModel(action_scopes={"p0": [], "p1": ["c1"]})
+    blind.learn_steps(train)
+    stays = right = 0
+    for i in range(6, len(held_out)):
+        said = blind.predict_step(held_out[i - 6:i], held_out[i][0])
+        truth, before = held_out[i][1], held_out[i - 1][1]
+        stays += truth["p0"] == before["p0"]
+        right += said["p0"] == truth["p0"]
+        assert said["p1"] == truth["p1"]  # the joint that sees its command: exact
+    assert right >= stays > 0.4 * (len(held_out) - 6)
+    assert blind.library.n_scopes == 1  # no scope's tokens for a view that sees no action
+
+
 def test_single_batch_and_replay_paths_agree_on_a_scoped_library():
     model = learned(3, own(3), train=1500)
     library = model.library

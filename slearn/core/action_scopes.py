@@ -7,18 +7,21 @@ its own command. :func:`suggest_scopes` finds the scopes in recorded steps, for 
 declare (``slearn info --suggest-spec``).
 
 For each observation channel it models the channel's reading from its previous reading
-and the step's values of a set of action channels (counts of every (previous reading,
-actions) context, most likely outcome per context), and chooses the set by forward
-selection on the Bayesian information criterion (Schwarz 1978): start from no action,
-add the action channel that raises ``log-likelihood - (parameters / 2) ln N`` most, stop
-when none raises it. Parameters are ``(outcomes - 1)`` per context seen, so an action
-joins only when what it explains outweighs the contexts it splits the data into. No
-constant is tuned: the penalty is BIC's own.
+and the step's values of a set of action channels, and chooses the set by forward
+selection on a prequential code length (Dawid 1984; Rissanen's predictive MDL): every
+step's reading is predicted from the counts of the steps before it in the same context,
+``(n(context, reading) + 1 / R) / (n(context) + 1)`` over the ``R`` readings the channel
+takes, and a set costs the log-loss of the whole sequence. Start from no action, add the
+action channel that shortens the code most, stop when none shortens it. Each context
+pays for its first visits (``ln R`` and more before its counts settle), so an action joins
+only when what it explains outweighs the contexts it splits the data into; unlike BIC's
+``(R - 1) / 2 ln N`` per context, the cost does not grow with values a reading never takes
+after a context (36 positions of a joint, of which 3 follow any one). No constant is
+tuned: the one prior observation, spread evenly, is the estimator's own.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Iterable
 
 import numpy as np
@@ -92,9 +95,10 @@ def _forward_selection(before: np.ndarray, acted: np.ndarray, outcome: np.ndarra
     if n == 0:
         return list(range(acted.shape[1]))
     outcome = np.unique(outcome, return_inverse=True)[1].ravel()
-    n_outcomes = int(outcome.max()) + 1
+    uniform = 1.0 / (int(outcome.max()) + 1)  # one prior observation, spread over the readings
     context = np.unique(before, return_inverse=True)[1].ravel()
-    best, chosen = _bic(context, outcome, n_outcomes), list[int]()
+    p = _prequential(context, outcome, uniform)
+    best, chosen = _code_length(p), list[int]()
     while len(chosen) < acted.shape[1]:
         trials = []
         for a in range(acted.shape[1]):
@@ -102,19 +106,34 @@ def _forward_selection(before: np.ndarray, acted: np.ndarray, outcome: np.ndarra
                 continue
             values = np.unique(acted[:, a], return_inverse=True)[1].ravel()
             joined = np.unique(context * (int(values.max()) + 1) + values, return_inverse=True)[1].ravel()
-            trials.append((_bic(joined, outcome, n_outcomes), -a, joined))
-        score, minus_a, joined = max(trials, key=lambda t: (t[0], t[1]))
-        if score <= best:
+            q = _prequential(joined, outcome, uniform)
+            trials.append((_code_length(q), a, joined))
+        length, a, joined = min(trials, key=lambda t: (t[0], t[1]))
+        if length >= best:
             break
-        best, context = score, joined
-        chosen.append(-minus_a)
+        best, context = length, joined
+        chosen.append(a)
     return chosen
 
 
-def _bic(context: np.ndarray, outcome: np.ndarray, n_outcomes: int) -> float:
-    """``log-likelihood - (parameters / 2) ln N`` of the outcome given dense context ids."""
-    pairs, counts = np.unique(context * n_outcomes + outcome, return_counts=True)
-    totals = np.bincount(pairs // n_outcomes, weights=counts)
-    loglik = float(np.sum(counts * np.log(counts / totals[pairs // n_outcomes])))
-    contexts = int(np.count_nonzero(totals))
-    return loglik - 0.5 * contexts * (n_outcomes - 1) * math.log(len(outcome))
+def _prequential(context: np.ndarray, outcome: np.ndarray, prior: float) -> np.ndarray:
+    """Each step's probability of its outcome from the steps before it in its context,
+    ``(n(context, outcome) + prior) / (n(context) + 1)``."""
+    n_outcomes = int(outcome.max()) + 1
+    return (_seen_before(context * n_outcomes + outcome) + prior) / (_seen_before(context) + 1.0)
+
+
+def _seen_before(keys: np.ndarray) -> np.ndarray:
+    """For each position, how many earlier positions hold the same key."""
+    order = np.argsort(keys, kind="stable")
+    ranked = keys[order]
+    starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
+    rank = np.arange(len(keys)) - np.repeat(starts, np.diff(np.r_[starts, len(keys)]))
+    out = np.empty(len(keys), np.float64)
+    out[order] = rank
+    return out
+
+
+def _code_length(p: np.ndarray) -> float:
+    """The sequence's code length in nats."""
+    return float(-np.log(p).sum())

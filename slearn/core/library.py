@@ -79,8 +79,9 @@ class PatternLibrary:
             sequence of observations); ``None`` decides from the vocabulary, or else from
             the first episode learned.
         action_scopes: ``{observation channel: action channels}``: that channel's view sees
-            the step's actions on those channels only (:mod:`slearn.core.views`); the other
-            views see every action. Needs a vocabulary.
+            the step's actions on those channels only (:mod:`slearn.core.views`; none: no
+            action token at all, its stream holds its own readings); the other views see
+            every action. Needs a vocabulary.
     """
 
     def __init__(self, max_length: int = DEFAULT_MAX_LENGTH, max_patterns: int | None = None,
@@ -88,7 +89,8 @@ class PatternLibrary:
                  action_scopes: dict[str, tuple[str, ...]] | None = None) -> None:
         check_parameters(max_length, max_patterns)
         self.action_scopes = check_scopes(action_scopes, vocabulary)
-        self._scopes = sorted(set(self.action_scopes.values()))  # scope c: its action channels
+        # scope c: its action channels (a view that sees none needs no scope's tokens)
+        self._scopes = sorted(set(self.action_scopes.values()) - {()})
         self._in_scope = np.zeros((len(self._scopes), 0), np.uint8)  # see scope_masks
         self.max_length = int(max_length)
         self.max_patterns = None if max_patterns is None else int(max_patterns)
@@ -146,9 +148,12 @@ class PatternLibrary:
         return np.concatenate((self._in_scope, np.ones((len(self._scopes), n_symbols - known), np.uint8)), axis=1)
 
     def scope_of_view(self, name: str) -> int:
-        """The scope a view's stream shows (-1: every action)."""
+        """The scope a view's stream shows (``ALL_ACTIONS``, ``NO_ACTIONS`` or an index of
+        ``StepCodes.scoped``'s columns)."""
         names = self.action_scopes.get(name)
-        return -1 if names is None else self._scopes.index(names)
+        if names is None:
+            return views.ALL_ACTIONS
+        return views.NO_ACTIONS if not names else self._scopes.index(names)
 
     @property
     def factored(self) -> bool:

@@ -36,7 +36,7 @@ from slearn.core.context_tree import (
     root_path,
 )
 from slearn.core.mixer import FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
-from slearn.core.views import NO_TOKEN
+from slearn.core.views import NO_ACTIONS, NO_TOKEN
 
 
 class Reports(NamedTuple):
@@ -135,8 +135,9 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
         if push_action:
             for v in range(n_views):
                 c = scope[v]
-                recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
-                filled[v] += 1
+                if c != NO_ACTIONS:
+                    recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
+                    filled[v] += 1
         for r in range(r0, r1):
             v, x = view[r], token[r]
             depth = min(filled[v], K)

@@ -20,7 +20,7 @@ from slearn.core.addresses import address_table, cube, matrix, vector
 from slearn.core.context_tree import Tree, child, path_hash, root_path
 from slearn.core.mixer import N_KINDS, Mixer, heaviest_beyond, select
 from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_hold, record_prediction
-from slearn.core.views import NO_TOKEN, UNKNOWN, ViewState, new_view_state
+from slearn.core.views import NO_ACTIONS, NO_TOKEN, UNKNOWN, ViewState, new_view_state
 
 
 class Memo(NamedTuple):
@@ -244,8 +244,9 @@ def predict_queries(table):
             if push_action:
                 for v in range(n_views):
                     c = scope[v]
-                    recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
-                    filled[v] += 1
+                    if c != NO_ACTIONS:
+                        recent[v, filled[v] & M] = a if c < 0 else scoped[step, c]
+                        filled[v] += 1
             first_obs, end_obs = offsets[step], offsets[step + 1]
             for r in range(first_obs, end_obs):
                 v = view[r]
@@ -261,8 +262,9 @@ def predict_queries(table):
         if has_actions and (e > s or a != empty_action):
             for v in range(n_views):
                 c = scope[v]
-                recent[v, filled[v] & M] = a if c < 0 else scoped[e, c]
-                filled[v] += 1
+                if c != NO_ACTIONS:
+                    recent[v, filled[v] & M] = a if c < 0 else scoped[e, c]
+                    filled[v] += 1
         for v in range(n_views):
             depth = min(filled[v], K)
             if depth == 0:

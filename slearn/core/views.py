@@ -36,6 +36,8 @@ from slearn.errors import ParameterError
 
 NO_VIEW = -1
 NO_TOKEN = -1
+ALL_ACTIONS = -1  # ViewState.scope: the view sees every action of a step
+NO_ACTIONS = -2   # and: it sees none (its stream holds its own readings only)
 """A view's held observation before its first one."""
 UNKNOWN = -2
 """A token the library never saw (prediction from a history): it matches no context."""
@@ -163,7 +165,8 @@ class ViewState(NamedTuple):
     not a division (the divisions by the context length were a fifth of a batch query's
     time); ``held[v]`` its last observation token (-1 before the first); ``root[v]`` its root
     node in the context tree; ``scope[v]`` the scope whose actions its stream shows
-    (``StepCodes.scoped``; -1: every action of the step).
+    (``StepCodes.scoped``; ``ALL_ACTIONS``: every action of the step, ``NO_ACTIONS``: none,
+    so no action token is pushed).
     """
 
     recent: np.ndarray  # int32 (views, ring_width(max_context))

@@ -330,6 +330,7 @@ def with_action_scopes(text: str, paths: Iterable[str], window=None) -> str:
             names = scopes[spec.channels[entry].name]
             out.append(f"actions = [{', '.join(_toml_str(n) for n in names)}]  # its own command"
                        f"{'s' if len(names) > 1 else ''}: the readings depend on "
-                       f"{'these' if len(names) > 1 else 'this'} alone (BIC on the first steps)"
-                       if names else "actions = []  # no command changes these readings (BIC on the first steps)")
+                       f"{'these' if len(names) > 1 else 'this'} alone (code length on the first steps)"
+                       if names else "actions = []  # no command changes these readings "
+                       "(code length on the first steps)")
     return "\n".join(out)
