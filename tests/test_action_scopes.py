@@ -19,7 +19,7 @@ from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import LibraryFormatError, ParameterError, SpecError
 from slearn.io.library_file import METADATA_KEY, LoadedLibrary, library_params, load_library, save_library
-from slearn.io.spec import _build_spec
+from slearn.io.spec import _build_spec, spec_from_options
 from slearn.jobs.merge import merge_libraries
 
 BINS = 8
@@ -277,6 +277,13 @@ def test_a_spec_declares_scopes_by_entry_name_and_checks_them():
         with pytest.raises(SpecError, match=message):
             _build_spec(spec_text(extra, role), "arm.toml")
 
+
+
+def test_the_command_line_shorthand_declares_scopes_too():
+    spec = spec_from_options(["/cmd:data[0]:action:values=[-1;0;1]", "/cmd:data[1]:action:values=[-1;0;1]",
+                              "/state:position[0]:observation:actions=[/cmd:data[1]],values=[0;1;2]",
+                              "/state:position[1]:observation:actions=[],values=[0;1;2]"])
+    assert spec.action_scopes() == {"/state:position[0]": ("/cmd:data[1]",), "/state:position[1]": ()}
 
 def test_save_writes_format_3_only_with_its_scopes(tmp_path):
     vocabulary = learned(2, None, train=5).vocabulary

@@ -664,7 +664,8 @@ def parse_channel_option(text: str) -> dict:
     """Parse ``TOPIC:FIELD:ROLE[:OPTIONS]`` into a spec entry table (see the module doc).
 
     OPTIONS: ``key=value`` pairs separated by commas; lists as ``[a,b]`` or ``a;b``:
-    ``range=[0,6.28],count=36,wrap=true``, ``values=[L,R]``, ``mode=change``.
+    ``range=[0,6.28],count=36,wrap=true``, ``values=[L,R]``, ``mode=change``,
+    ``actions=[/cmd:data[0]]``.
 
     Raises:
         SpecError: fewer than three parts or a malformed option.
@@ -680,7 +681,7 @@ def parse_channel_option(text: str) -> dict:
             raise SpecError(f"--channel {text!r}: option {option!r} must be key=value "
                             f"(lists as key=[a,b])")
         items = _option_items(value)
-        listy = key.strip() in ("values", "edges", "range") or len(items) > 1
+        listy = key.strip() in ("values", "edges", "range", "actions") or len(items) > 1
         entry[key.strip()] = items if listy else (items[0] if items else "")
     return entry
 
