@@ -16,6 +16,7 @@ abstains (``None``), unless the actions alone say something. Values must be hash
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, Hashable, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -25,7 +26,7 @@ from slearn.core.literal import LiteralLibrary
 from slearn.core.predictor import Predictor, check_top_k
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
-from slearn.errors import ParameterError
+from slearn.errors import DataWarning, ParameterError
 
 ITEM = "item"
 _RANKED_KEPT = 1 << 14  # rankings a model remembers by their prediction
@@ -179,6 +180,16 @@ class SequenceModel:
         rows = [self._step_symbols(step, learn=True) for step in _iterable(steps, "steps")]
         if rows:
             self._learn(Episode.from_steps(rows))
+            if self._scopes and self.library is not None and self.library.clock == len(rows):
+                self._warn_unseen_scope_channels()  # once, after the first episode
+
+    def _warn_unseen_scope_channels(self) -> None:
+        roles = self.vocabulary.roles
+        unseen = sorted({n for view, names in self._scopes.items() for n in (view, *names) if n not in roles})
+        if unseen:
+            warnings.warn(f"action_scopes name channels no step of the first episode has: "
+                          f"{', '.join(map(repr, unseen))} (a view sees only the actions of the "
+                          f"channels its scope names): check the names", DataWarning, stacklevel=3)
 
     def predict_step(self, history: Sequence[Step], actions: Mapping[str, Hashable]) -> dict:
         """``{channel: value}``: each observation channel's most likely next value."""

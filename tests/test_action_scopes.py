@@ -4,6 +4,7 @@ views, the spec's ``actions``, ``SequenceModel(action_scopes=...)``)."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -17,7 +18,7 @@ from slearn.core.library import PatternLibrary
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
-from slearn.errors import LibraryFormatError, ParameterError, SpecError
+from slearn.errors import DataWarning, LibraryFormatError, ParameterError, SpecError
 from slearn.io.library_file import METADATA_KEY, LoadedLibrary, library_params, load_library, save_library
 from slearn.io.spec import _build_spec, spec_from_options
 from slearn.jobs.merge import merge_libraries
@@ -229,6 +230,16 @@ def test_libraries_of_other_scopes_do_not_merge(tmp_path):
         model.save(tmp_path / f"{name}.parquet")
     with pytest.raises(Exception, match="action_scopes"):
         merge_libraries(load_library(tmp_path / "a.parquet"), load_library(tmp_path / "b.parquet"))
+
+
+def test_a_scope_naming_a_channel_no_step_has_is_warned_about_once():
+    model = SequenceModel(action_scopes={"p0": ["c9"]})
+    with pytest.warns(DataWarning, match="'c9'"):
+        model.learn_steps(busy_walk(2, 0, 20))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.learn_steps(busy_walk(2, 1, 20))  # said once
+        learned(2, own(2), train=20)            # names that are there: nothing to say
 
 
 def test_bad_scopes_are_refused_in_one_line():
