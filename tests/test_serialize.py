@@ -221,12 +221,12 @@ def test_rosbag2_service_events_and_wrong_format_are_clear_errors():
 
 
 def test_default_spec_is_the_pointer_spec_for_pointer_logs(tmp_path):
-    from slearn.io.serialize import default_spec
+    from slearn.jobs.learn import default_spec
     pointer = write_log(tmp_path / "p.mcap", pointer_messages("R", [1, 2]))
-    assert default_spec([pointer]) == pointer_spec()
+    assert default_spec(str(pointer)) == pointer_spec()
     other = write_log(tmp_path / "o.mcap", MODES_LOG)
     with pytest.raises(SpecError, match="o.mcap: not a pointer log.*--suggest-spec"):
-        default_spec([other])
+        default_spec(str(other))
 
 
 def test_tick_mode_refuses_absurd_tick_counts(tmp_path):

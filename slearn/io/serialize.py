@@ -56,7 +56,7 @@ from slearn.io.decode import MISSING, DecoderCache, FieldPath, decode_payload
 from slearn.io.episodes import EPISODE_TOPIC, episode_name
 from slearn.io.mcap_read import ReadReport
 from slearn.io.slicing import TimeSlice
-from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Bins, ChannelSpec, Spec, pointer_spec, value_labels
+from slearn.io.spec import Bins, ChannelSpec, Spec, value_labels
 
 if TYPE_CHECKING:
     from slearn.io.ingest import Piece
@@ -578,31 +578,6 @@ def iter_step_times(path: str | os.PathLike, spec: Spec, vocabulary: Vocabulary,
 def _warn_if_truncated(report: ReadReport) -> None:
     if report.truncated:
         warnings.warn(TruncatedLogWarning(report.describe()), stacklevel=3)
-
-
-def _log_topics(path: str | os.PathLike, wanted: set[str]) -> set[str]:
-    with open_log(path) as log:
-        topics = {c.topic for c in log.channels.values()}
-        for message in log.iter_messages():  # channels defined inside chunks only
-            if wanted <= topics:
-                break
-            topics.add(message.topic)
-    return topics
-
-
-def default_spec(paths: Iterable[str | os.PathLike]) -> Spec:
-    """The spec to use when none was given: :func:`~slearn.io.spec.pointer_spec` for pointer logs.
-
-    Raises:
-        SpecError: the first log is not a pointer log; the message says how to get a spec.
-    """
-    paths = list(paths)
-    wanted = {POINTER_COMMAND, POINTER_POSITION}
-    if paths and wanted <= _log_topics(paths[0], wanted):
-        return pointer_spec()
-    raise SpecError(f"{os.fspath(paths[0]) if paths else 'no logs'}: not a pointer log, so there is "
-                    f"no default spec: give --spec FILE (start from `slearn info LOG "
-                    f"--suggest-spec spec.toml`) or --channel TOPIC:FIELD:ROLE")
 
 
 # --- fitting ----------------------------------------------------------------------------
