@@ -14,7 +14,10 @@ mean of ``--seeds`` seeds, frozen accuracy per joint on 2,000 held-out steps aft
   ``last+own`` counts it after (last reading, the joint's own command), the structure
   known in advance (the ceiling here: the walk is deterministic).
 
-Run: ``python bench/bench_scopes.py [--train 9000] [--seeds 3] [--joints 2,3,5,7] [--json]``.
+With slip (``--slips``, default ``0,0.2``: one table each) a move is one position more or
+less than commanded with that probability, so the ceiling is below 1 (``last+own``).
+
+Run: ``python bench/bench_scopes.py [--train 9000] [--seeds 3] [--joints 2,3,5,7] [--slips 0,0.2] [--json]``.
 """
 
 from __future__ import annotations
@@ -35,14 +38,16 @@ HELD_OUT = 2000
 HISTORY = 6
 
 
-def walk(joints: int, seed: int, steps: int) -> list:
-    """Steps ``({c0..: command}, {p0..: position})`` of the busy arm."""
+def walk(joints: int, seed: int, steps: int, slip: float = 0.0) -> list:
+    """Steps ``({c0..: command}, {p0..: position})`` of the busy arm; with ``slip``, each
+    joint's move is one position more or less (at random) with that probability."""
     rng = np.random.default_rng(seed)
     position = [int(p) for p in rng.integers(POSITIONS, size=joints)]
     out = []
     for _ in range(steps):
         cmd = [int(c) for c in rng.integers(-1, 2, size=joints)]
-        position = [min(POSITIONS - 1, max(0, p + c)) for p, c in zip(position, cmd)]
+        moves = [c + (int(rng.choice((-1, 1))) if slip and rng.random() < slip else 0) for c in cmd]
+        position = [min(POSITIONS - 1, max(0, p + m)) for p, m in zip(position, moves)]
         out.append(({f"c{j}": cmd[j] for j in range(joints)}, {f"p{j}": position[j] for j in range(joints)}))
     return out
 
@@ -80,15 +85,15 @@ def peer_accuracy(peer: DictPeer, held: list) -> float:
     return float(np.mean(right))
 
 
-def measure(joints: int, train: int, seed: int) -> dict:
-    steps, held = walk(joints, seed, train), walk(joints, seed + 1000, HELD_OUT)
+def measure(joints: int, train: int, seed: int, slip: float = 0.0) -> dict:
+    steps, held = walk(joints, seed, train, slip), walk(joints, seed + 1000, HELD_OUT, slip)
     probe = SequenceModel()
     probe.learn_steps(steps[:1])  # the channels, for the choice's vocabulary
     episode = Episode.from_steps([probe._step_symbols(s, learn=True) for s in steps])
     started = time.perf_counter()
     scopes = suggest_scopes([episode], probe.vocabulary)
     choose_s = time.perf_counter() - started
-    row = {"joints": joints, "seed": seed, "choose_s": choose_s,
+    row = {"joints": joints, "seed": seed, "slip": slip, "choose_s": choose_s,
            "found": scopes == {f"p{j}": (f"c{j}",) for j in range(joints)}}
     for name, chosen in (("scoped", {k: list(v) for k, v in scopes.items()}), ("tuple", None)):
         model = SequenceModel(action_scopes=chosen)
@@ -110,14 +115,22 @@ def main() -> None:
     parser.add_argument("--train", type=int, default=9000)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--joints", default="2,3,5,7")
+    parser.add_argument("--slips", default="0,0.2", help="slip probabilities, one table each")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    rows = [measure(j, args.train, s) for j in map(int, args.joints.split(",")) for s in range(args.seeds)]
+    slips = [float(p) for p in args.slips.split(",")]
+    rows = [measure(j, args.train, s, slip) for slip in slips for j in map(int, args.joints.split(","))
+            for s in range(args.seeds)]
     if args.json:
         print(json.dumps(rows, indent=2))
         return
-    print(f"busy arm, {POSITIONS} positions, {args.train:,} training steps, {HELD_OUT:,} held out, "
-          f"mean of {args.seeds} seeds; accuracy per joint")
+    for slip in slips:
+        table([r for r in rows if r["slip"] == slip], args, slip)
+
+
+def table(rows: list, args, slip: float) -> None:
+    print(f"busy arm, {POSITIONS} positions, slip {slip:g}, {args.train:,} training steps, {HELD_OUT:,} "
+          f"held out, mean of {args.seeds} seeds; accuracy per joint")
     print(f"{'joints':>6} {'found':>6} {'scoped':>7} {'tuple':>7} {'last+tuple':>10} {'last+own':>9} "
           f"{'scoped/peer':>11} {'patterns scoped/tuple':>22} {'learn s scoped/tuple':>21} {'choose s':>8}")
     for joints in sorted({r["joints"] for r in rows}):

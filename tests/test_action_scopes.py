@@ -328,3 +328,7 @@ def test_the_bench_finds_the_scopes_and_beats_the_dict_peers_on_a_busy_arm():
     assert row["scoped"] == row["last+own"] == 1.0  # the ceiling of a deterministic walk
     assert row["tuple"] < row["scoped"] and row["last+tuple"] < row["scoped"]
     assert row["scoped_patterns"] < row["tuple_patterns"] / 2
+    slipping = bench_scopes.measure(5, 3000, 0, slip=0.2)  # moves one position off at times
+    assert slipping["found"]
+    assert slipping["scoped"] >= slipping["last+own"] - 0.01  # within a point of the ceiling
+    assert slipping["last+own"] < 0.9 and slipping["last+tuple"] < slipping["scoped"] - 0.03
