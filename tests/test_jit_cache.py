@@ -131,6 +131,20 @@ def test_a_helper_compiles_once_for_literal_and_narrow_arguments():
     assert add.signatures == [(_jit.types.int64, _jit.types.int64)]
 
 
+
+def test_a_direct_call_skips_the_dispatcher_and_answers_the_same():
+    import numpy as np
+
+    @_jit.kernel
+    def first(values):
+        return values[0] * 2
+
+    values = np.array([21, 1], np.int64)
+    direct = _jit.direct_call(first, values)
+    assert direct is not first and direct(values) == first(values) == 42
+    assert first.signatures == [(_jit.types.int64[::1],)]  # compiled once, for that type
+    assert _jit.direct_call(first, object()) is first  # a type numba has not: the plain call
+
 def _decorator(node) -> str:
     """``helper``, ``helper-python`` (``@helper(python=True)``), ``kernel`` or ""."""
     if isinstance(node, ast.Call):

@@ -61,6 +61,17 @@ def helper(function=None, *, python: bool = False):
         return _plain_calls(numba.njit(**options)(function))
 
 
+def direct_call(dispatcher, *example):
+    """``dispatcher`` compiled (or loaded from the cache) for the types of ``example``, as
+    its compiled entry point: a call that skips the dispatcher's typing of its arguments
+    (0.2 us of a 0.4 us call with one array). Pass it arguments of exactly those types; a
+    dispatcher that cannot give one is returned as it is."""
+    try:
+        return dispatcher.compile(tuple(numba.typeof(a) for a in example))
+    except Exception:  # (an interface of numba's that changed: the plain call still works)
+        return dispatcher
+
+
 def _plain_calls(dispatcher):
     """Called from compiled code, compile ``dispatcher`` for the plain types of its arguments.
 

@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from slearn.core._jit import direct_call
 from slearn.core.online import REPORT_KINDS, Reports, new_reports
 from slearn.core.queries import (
     N_FLAT,
@@ -128,6 +129,7 @@ class Predictor:
         self._capacity = 0                  # and how many codes they hold
         self._single_state: tuple = (None, None)  # the tree and mixer its table points to
         self._single_table = np.zeros(0, np.int64)
+        self._single_call = predict_queries  # predict_queries for that table (_prepare_single)
         self._batch: Buffers  # the scratch streams and memo of batches (made by _refresh)
         self._batch_state: tuple = (None, None)  # the tree and mixer their rows point to
         self._batch_rows = np.zeros(0, np.int64)
@@ -176,7 +178,7 @@ class Predictor:
                         self._prepare_single(size)
                     self._flat_bytes[:len(flat)] = flat
                     self._single_run[N_FLAT] = size
-                    predict_queries(self._single_table)
+                    self._single_call(self._single_table)
                     said = self._made.get(bytes(self._said))
                     if said is None:
                         said = self._single_answer()
@@ -250,7 +252,7 @@ class Predictor:
             self._prepare_single(size)
         self._flat_bytes[:len(flat)] = flat
         self._single_run[N_FLAT] = size
-        predict_queries(self._single_table)
+        self._single_call(self._single_table)
         return self._single.out
 
     def _prepare_single(self, size: int) -> None:
@@ -262,6 +264,7 @@ class Predictor:
                                                                       library.n_scopes)))
         if library.tree is not self._single_state[0] or library.mixer is not self._single_state[1]:
             self._single_table = state_table((library.tree, library.mixer), self._single)
+            self._single_call = direct_call(predict_queries, self._single_table)  # (an int64 vector)
             self._single_state = (library.tree, library.mixer)
 
     def _use_single(self, buffers: Buffers) -> None:
