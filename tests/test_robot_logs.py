@@ -277,6 +277,8 @@ def test_an_arm_commanding_every_joint_at_once_learns_each_joint_from_its_own_co
         library = tmp_path / f"{name}.parquet"
         learned = invoke("learn", train, "--spec", used, "-o", library, "-q")
         assert learned.exit_code == 0, learned.output
+        hinted = "no `actions` scopes" in learned.stderr  # learn says what the spec misses
+        assert hinted == (name == "unscoped") and ("--suggest-spec" in learned.stderr) == hinted
         doc = json.loads(invoke("replay", library, heldout, "--json", "-q").stdout)
         accuracy[name] = [c["accuracy"] for c in doc["channels"]]
     assert min(accuracy["scoped"]) >= 0.99  # every joint, from its own command

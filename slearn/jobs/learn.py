@@ -40,6 +40,7 @@ from slearn.io.onepass import can_fit_in_one_pass, fit_and_read
 from slearn.io.serialize import fit_spec, read_episodes, read_pieces
 from slearn.io.slicing import TimeSlice, shares_time, slice_from_dict
 from slearn.io.spec import POINTER_COMMAND, POINTER_POSITION, Spec, pointer_spec
+from slearn.jobs.suggest import ScopeHint
 
 SCORING_RULES = ("adaptive", "literal")
 DEFAULT_SCORING = "adaptive"
@@ -290,11 +291,13 @@ def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: Learn
     if isinstance(job.library, LiteralLibrary):  # its parse takes whole episodes
         pieces = ((name, episode, report, True, True)
                   for name, episode, report in _whole(pieces))
+    hint = ScopeHint(job.spec, job.vocabulary, job.library)
     for path, piece, report, first, last in pieces:
         if isinstance(job.library, LiteralLibrary):
             job.library.learn(piece)
         else:
             job.library.learn(piece, new_episode=first)
+            hint.see(piece)
         result.n_steps += len(piece)
         result.n_events += piece.n_events
         if not last:
@@ -305,6 +308,7 @@ def _learn_episodes(job: _Job, paths: Sequence[str | os.PathLike], result: Learn
             result.truncated.append(report)
         if on_episode is not None:
             on_episode(result, path)
+    hint.warn()
 
 
 def _whole(pieces):
