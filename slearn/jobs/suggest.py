@@ -342,8 +342,10 @@ HINT_STEPS = 20_000
 
 class ScopeHint:
     """Watches the first steps a learn job reads; when the spec has two or more action
-    entries and no ``actions`` scopes, but those steps show observations driven by some
-    commands only (:func:`slearn.core.action_scopes.suggest_scopes`), :meth:`warn` says so:
+    entries and no ``actions`` scopes, the steps combine commands (more distinct command
+    tuples than values of the commands one at a time: several change together), and they
+    show observations driven by some commands only
+    (:func:`slearn.core.action_scopes.suggest_scopes`), :meth:`warn` says so:
     without scopes each observation's contexts hold the whole command tuple, which rarely
     repeats when many commands change at once (a 7-joint arm: 0.30 per joint against 1.00)."""
 
@@ -371,8 +373,10 @@ class ScopeHint:
         from slearn.core.action_scopes import suggest_scopes
         from slearn.errors import DataWarning
 
-        scopes = suggest_scopes(self.pieces, self.vocabulary, HINT_STEPS)
-        self.pieces = []
+        pieces, self.pieces = self.pieces, []
+        if not _combined_commands(pieces):
+            return
+        scopes = suggest_scopes(pieces, self.vocabulary, HINT_STEPS)
         if scopes:
             view, names = next(iter(scopes.items()))
             warnings.warn(DataWarning(
@@ -380,3 +384,18 @@ class ScopeHint:
                 f"{min(self.steps, HINT_STEPS):,} steps (e.g. {view}: {', '.join(names) or 'none'}), "
                 f"but the spec gives no `actions` scopes, so each is predicted from the whole command "
                 f"tuple: `slearn info LOG --suggest-spec spec.toml` writes them"), stacklevel=3)
+
+
+def _combined_commands(pieces) -> bool:
+    """Whether the steps of ``pieces`` hold more distinct command tuples than distinct
+    command values (one command per step, as a pointer arm sends them, gives as many)."""
+    tuples: set[tuple] = set()
+    values: set[int] = set()
+    for piece in pieces:
+        offsets, n_actions, symbols = piece.step_offsets.tolist(), piece.n_actions.tolist(), piece.symbols
+        for s, n in enumerate(n_actions):
+            if n:  # (a step without commands is no combination)
+                step = tuple(symbols[offsets[s]:offsets[s] + n].tolist())
+                tuples.add(step)
+                values.update(step)
+    return len(tuples) > len(values)
