@@ -36,11 +36,13 @@ from slearn.errors import ParameterError
 
 NO_VIEW = -1
 NO_TOKEN = -1
-ALL_ACTIONS = -1  # ViewState.scope: the view sees every action of a step
-NO_ACTIONS = -2   # and: it sees none (its stream holds its own readings only)
 """A view's held observation before its first one."""
 UNKNOWN = -2
 """A token the library never saw (prediction from a history): it matches no context."""
+ALL_ACTIONS = -1
+"""A view's scope (``ViewState.scope``) when it sees every action of a step."""
+NO_ACTIONS = -2
+"""A view's scope when it sees none: its stream holds its own readings only."""
 
 
 class StepCodes(NamedTuple):

@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from typing import Iterable
 
+from slearn.errors import DataWarning
 from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile
 
 OBSERVATIONS_LIVE = 3  # observation fields uncommented
@@ -294,7 +296,6 @@ def with_action_scopes(text: str, paths: Iterable[str], window=None) -> str:
     (:func:`slearn.core.action_scopes.suggest_scopes`, on the first steps of ``paths``).
     A spec with fewer than two action entries is returned as it is."""
     import tomllib
-    import warnings
 
     from slearn.errors import SpecError
     from slearn.io.spec import _build_spec
@@ -352,7 +353,8 @@ class ScopeHint:
     def __init__(self, spec, vocabulary, library) -> None:
         self.vocabulary, self.steps = vocabulary, 0
         self.pieces: list = []  # the first steps' episodes (pieces)
-        self.active = (sum(c.role == "action" for c in spec.channels) >= 2 and not spec.action_scopes()
+        # (a library's scopes are its spec's; a literal library has none to give)
+        self.active = (sum(c.role == "action" for c in spec.channels) >= 2
                        and getattr(library, "action_scopes", None) == {})
 
     def see(self, piece) -> None:
@@ -368,10 +370,7 @@ class ScopeHint:
         if not self.active or not self.pieces:
             return
         self.active = False
-        import warnings
-
-        from slearn.core.action_scopes import suggest_scopes
-        from slearn.errors import DataWarning
+        from slearn.core.action_scopes import suggest_scopes  # (`info` imports this module)
 
         pieces, self.pieces = self.pieces, []
         if not _combined_commands(pieces):
