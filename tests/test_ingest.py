@@ -8,6 +8,8 @@ import warnings
 import numpy as np
 import pytest
 from fixtures import SHARED_MCAP, write_log
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from mcap.writer import CompressionType
 
 import slearn.io.ingest as ingest
@@ -192,6 +194,56 @@ def test_json_batches_never_merge_bad_payloads(tmp_path):
     assert np.array_equal(old.symbols, new.symbols) and len(new.symbols) == 15
     assert report.undecodable == old_report.undecodable == {"/s": 9}
     assert report.first_undecodable == old_report.first_undecodable
+
+
+def _batch_of_payloads(payloads, gather_bytes, monkeypatch):
+    from slearn.io.mcap_read import MessageBatch
+
+    monkeypatch.setattr(ingest, "_GATHER_BYTES", gather_bytes)
+    pad = b"#"  # bytes between payloads in the batch's buffer, not theirs
+    buf, starts = b"", []
+    for data in payloads:
+        starts.append(len(buf) + 1)
+        buf += pad + data
+    starts_a = np.array(starts, np.int64)
+    ends = starts_a + np.array([len(p) for p in payloads], np.int64)
+    n = len(payloads)
+    return MessageBatch(buf, np.zeros(n, np.int64), np.zeros(n, np.uint64), starts_a, ends,
+                        np.arange(n, dtype=np.int64), {})
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.text('[]{}",:1 a\\', min_size=1, max_size=6),
+                          st.recursive(st.none() | st.integers(-9, 9) | st.text("a,\"[", max_size=3),
+                                       lambda inner: st.lists(inner, max_size=3)
+                                       | st.dictionaries(st.text("ab,", max_size=2), inner, max_size=2),
+                                       max_leaves=5).map(json.dumps)),
+                max_size=8),
+       st.sampled_from([0, 1 << 20]))
+@example(["[1", "2],3"], 0)  # an array of the two has two elements, neither payload is JSON
+@example(['{"v": [{}', '{}]}', '{"v": 1},{"v": 2}'], 1 << 20)  # one merge, one split: three
+@example(['"a', 'b"', '1'], 0)
+def test_a_batch_of_json_payloads_parses_as_each_payload_alone_or_not_at_all(texts, gather_bytes):
+    """The payloads of a channel's batch are parsed as one JSON array (gathered with numpy
+    or joined by slices): the values are those of ``json.loads`` of each payload alone,
+    or ``None`` (then each is decoded alone), never values that only the array has."""
+    payloads = [t.encode() for t in texts]
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        batch = _batch_of_payloads(payloads, gather_bytes, monkeypatch)
+        joined, sizes = ingest._joined(batch, np.arange(len(payloads)))
+        assert joined == b",".join(payloads) and sizes.tolist() == [len(p) for p in payloads]
+        got = ingest._json_joined(joined, sizes)
+    alone = []
+    for data in payloads:
+        try:
+            alone.append(json.loads(data))
+        except ValueError:
+            alone.append(ValueError)
+    if got is not None:
+        assert ValueError not in alone and json.dumps(got) == json.dumps(alone)
+    if all(t.startswith(("[", "{", '"', "n", "-")) or t[0].isdigit() for t in texts) \
+            and ValueError not in alone and all(t.isascii() for t in texts):
+        assert got is not None or any(t != t.strip() for t in texts)  # plain payloads take the fast path
 
 
 @pytest.mark.parametrize("sample", [50, 1 << 20])

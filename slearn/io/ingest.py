@@ -19,7 +19,8 @@ import json
 import os
 from collections import Counter
 from dataclasses import dataclass
-from operator import itemgetter
+from itertools import chain, repeat
+from operator import is_, itemgetter
 from typing import TYPE_CHECKING, Any, Callable, Iterator, cast
 
 import numpy as np
@@ -40,6 +41,9 @@ BATCH_MESSAGES = 1 << 16  # messages decoded at once
 _NO_SYMBOL = -1
 _NO_BIN = np.iinfo(np.int64).min
 _UNSEEN = object()
+_GATHER_BYTES = 1 << 22  # payload bytes of a channel's batch joined with numpy (beyond: by slices)
+_PLAIN_KEYS = frozenset((str, int))    # values that are their own keys
+_PLAIN_NUMBERS = frozenset((int, float))  # values binned as one array
 
 
 @dataclass
@@ -77,36 +81,51 @@ _VALUE_END = np.zeros(256, bool)
 _VALUE_END[list(b'}]"0123456789elyN')] = True  # and ends with one of these
 
 
-def _json_all(payloads: list[bytes]) -> list | None:
-    """Every payload parsed as :func:`json.loads` parses it, by one parse of the JSON array
-    of them all; ``None`` when some payload needs a closer look (not ASCII, or the array
-    would not split where the payloads do).
+def _joined(batch: MessageBatch, on: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """The payloads of messages ``on`` of ``batch`` joined with commas, and their sizes:
+    gathered with numpy (one bytes object, not one per message) unless they are large."""
+    starts = batch.starts[on]
+    sizes = batch.ends[on] - starts
+    total = int(sizes.sum())
+    if total > _GATHER_BYTES or not sizes.all() or not len(sizes):
+        return b",".join([batch.buf[a:b] for a, b in zip(starts.tolist(), (starts + sizes).tolist())]), sizes
+    message = np.repeat(np.arange(len(sizes)), sizes)  # the message of each payload byte
+    at = np.arange(total)
+    joined = np.full(total + len(sizes) - 1, ord(","), np.uint8)
+    joined[at + message] = np.frombuffer(batch.buf, np.uint8)[(starts - (np.cumsum(sizes) - sizes))[message] + at]
+    return joined.tobytes(), sizes
+
+
+def _json_joined(joined: bytes, sizes: np.ndarray) -> list | None:
+    """Every payload of ``sizes`` bytes in ``joined`` (their bytes joined with commas) parsed
+    as :func:`json.loads` parses it, by one parse of the JSON array of them all; ``None``
+    when some payload needs a closer look (not ASCII, empty, or the array would not split
+    where the payloads do).
 
     The array ``[p1,p2,...]`` parses to the payloads' own values exactly when it has one
     element per payload and every comma put between payloads lies at the array's top
     level, outside strings (then each payload is one whole value; a value parses alike
-    alone or in an array). Both are checked, the second with numpy over the bytes.
+    alone or in an array). Both are checked, the second with numpy over the bytes, unless
+    the payloads have no comma of their own: then the array's elements are one more than
+    its top-level commas, all of them put between payloads, and one element per payload
+    means every one of those is at the top level.
     """
-    if not payloads:
+    if not len(sizes):
         return []
-    joined = b",".join(payloads)
-    if not joined.isascii():
-        return None
-    sizes = np.fromiter(map(len, payloads), np.int64, len(payloads))
-    if not sizes.all():
+    if not joined.isascii() or not sizes.all():
         return None
     commas = np.cumsum(sizes + 1)[:-1] - 1  # where the commas put between payloads are
     raw = np.frombuffer(joined, np.uint8)
     starts = np.concatenate(([0], commas + 1))
     if not (_VALUE_START[raw[starts]].all() and _VALUE_END[raw[starts + sizes - 1]].all()):
         return None
-    if len(commas) and not _top_level(raw, commas):
+    if len(commas) and joined.count(b",") != len(commas) and not _top_level(raw, commas):
         return None
     try:
         values = json.loads(b"[" + joined + b"]")
     except (ValueError, RecursionError):
         return None
-    return values if len(values) == len(payloads) else None
+    return values if len(values) == len(sizes) else None
 
 
 def _top_level(raw: np.ndarray, commas: np.ndarray) -> bool:
@@ -145,14 +164,16 @@ class _ChannelReader:
         json_objects = self.plan is None and self.decoder is _json
         self.getters = [_getter(e.path) if json_objects else _never for e in entries]
 
-    def values(self, payloads: list[bytes], offsets: list[int], report: ReadReport) -> list[list]:
-        """Per entry, the value of each payload (:data:`MISSING` when it has none or does
-        not decode; undecodable payloads are counted in ``report``)."""
-        if self.plan is not None:
-            rows = [self._plan_row(data, offset, report) for data, offset in zip(payloads, offsets)]
-            return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
-        objs = _json_all(payloads) if self.decoder is _json else None
+    def values(self, batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[list]:
+        """Per entry, the value of each of messages ``on`` of ``batch`` (:data:`MISSING` when
+        it has none or does not decode; undecodable payloads are counted in ``report``)."""
+        objs = _json_joined(*_joined(batch, on)) if self.decoder is _json and self.plan is None else None
         if objs is None:
+            payloads = [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
+            offsets = _where(batch, on, report)
+            if self.plan is not None:
+                rows = [self._plan_row(data, offset, report) for data, offset in zip(payloads, offsets)]
+                return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
             objs = [self._decode(data, offset, report) for data, offset in zip(payloads, offsets)]
         return [self._field(get, entry, objs) for get, entry in zip(self.getters, self.entries)]
 
@@ -229,9 +250,10 @@ class _Symbols:
         out = np.full(len(values), _NO_SYMBOL, np.int64)
         new: list[tuple[int, int, Any]] = []  # (position, entry, value) never seen
         keyed = {}
-        for index in np.unique(entries).tolist():
+        indexes = np.unique(entries).tolist()
+        for index in indexes:
             where = np.flatnonzero(entries == index)
-            keyed[index] = where, self._keys(index, [values[i] for i in where.tolist()])
+            keyed[index] = where, self._keys(index, values if len(indexes) == 1 else _taken(values, where))
             self._map(index, *keyed[index], out, new)
         new.sort(key=lambda item: item[0])
         for _, index, key in new:
@@ -250,9 +272,13 @@ class _Symbols:
                        new: list) -> None:
         get = self.known[index].get
         try:
-            found = [None if key is None else get(key, _UNSEEN) for key in keys]
+            found = list(map(get, keys, repeat(_UNSEEN)))  # (no value, a None key, is never known)
         except TypeError:
             self._unhashable(index)
+        if _UNSEEN not in found:  # every value seen before: the common case, without a loop
+            out[where] = found
+            return
+        found = [None if key is None else get(key, _UNSEEN) for key in keys]
         unseen = {}
         for i, key, symbol in zip(where.tolist(), keys, found):
             if symbol is _UNSEEN and key not in unseen:
@@ -282,7 +308,7 @@ class _Symbols:
         symbolizer = self.spec.channels[index].symbolizer
         if isinstance(symbolizer, Bins):
             return _bin_keys(symbolizer, vals, self, index)
-        if {type(v) for v in vals} <= {str, int}:
+        if set(map(type, vals)) <= _PLAIN_KEYS:
             return vals
         return [symbolizer.symbol_value(v) for v in vals]
 
@@ -324,7 +350,7 @@ def _bin_keys(bins: Bins, vals: list, symbols: _Symbols, index: int) -> np.ndarr
     if not vals:
         return []
     x = None
-    if {type(v) for v in vals} <= {int, float}:
+    if set(map(type, vals)) <= _PLAIN_NUMBERS:
         try:
             x = np.array(vals, dtype=np.float64)
         except OverflowError:  # an int too large for a float: value by value below
@@ -574,21 +600,26 @@ class _LogReader:
             on = idx[cids == cid]
             self.seen[topic] = self.seen.get(topic, 0) + len(on)
             reader = self._reader(batch.channels[cid])
-            payloads = [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
-            per_entry = reader.values(payloads, _where(batch, on, report), report)
+            per_entry = reader.values(batch, on, report)
             for entry, values in zip(reader.entries, per_entry):
-                got = [i for i, v in enumerate(values) if v is not MISSING]
-                entry.n_values += len(got)
-                parts_pos.append(on[got])
-                parts_entry.append(np.full(len(got), entry.index, np.int64))
-                parts_values.append([values[i] for i in got])
+                if any(map(is_, values, repeat(MISSING))):
+                    got = [i for i, v in enumerate(values) if v is not MISSING]
+                    parts_pos.append(on[got])
+                    values = [values[i] for i in got]
+                else:  # a value in every message: the common case, without a loop
+                    parts_pos.append(on)
+                entry.n_values += len(values)
+                parts_entry.append(np.full(len(values), entry.index, np.int64))
+                parts_values.append(values)
         if not sum(len(p) for p in parts_pos):
             return
         stream = self._episode(key)
         pos, entries = np.concatenate(parts_pos), np.concatenate(parts_entry)
-        values = [v for part in parts_values for v in part]
+        if len(parts_values) == 1:  # one entry's values, in message order already
+            stream.add(batch.log_times[pos], entries, parts_values[0])
+            return
         order = np.lexsort((entries, pos))  # message order, then spec order
-        stream.add(batch.log_times[pos[order]], entries[order], [values[i] for i in order.tolist()])
+        stream.add(batch.log_times[pos[order]], entries[order], _taken(list(chain.from_iterable(parts_values)), order))
 
     def _reader(self, channel) -> _ChannelReader:
         reader = self.readers.get(channel.id)
@@ -615,6 +646,13 @@ class _LogReader:
             self.stream = self.new_stream(self.path)
             self.stream.key = 0
         self.stream.finish()
+
+
+def _taken(values: list, at: np.ndarray) -> list:
+    """``[values[i] for i in at]``, without a Python loop."""
+    if len(at) < 2:
+        return [values[i] for i in at.tolist()]
+    return list(itemgetter(*at.tolist())(values))
 
 
 def _where(batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[int]:
