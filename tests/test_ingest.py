@@ -297,3 +297,39 @@ def test_compiled_record_walk_leaves_damaged_blocks_to_the_python_walk(tmp_path,
     with mcap_read.McapLog(path) as log:
         assert list(log.iter_messages()) == []
         assert "past the year 2262" in log.report.describe()
+
+
+def test_ros2_payloads_laid_out_alike_or_not_stream_as_they_read(tmp_path, monkeypatch):
+    """A ROS 2 channel whose payloads change layout now and then (joint names, array
+    lengths, byte order, a payload that does not decode) reads the same episodes,
+    vocabulary and undecodable count through the column path as message by message."""
+    from mcap.writer import Writer
+    from test_cdr import JOINTS_SCHEMA, _payload
+
+    rng = np.random.default_rng(3)
+    monkeypatch.setattr(ingest, "BATCH_MESSAGES", 50)
+    path = tmp_path / "joints.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=2000)
+        writer.start(profile="ros2", library="slearn-tests")
+        schema = writer.register_schema("my_msgs/Joints", "ros2msg", JOINTS_SCHEMA)
+        channel = writer.register_channel("/joints", "cdr", schema)
+        for i in range(400):
+            names = ["a", "b"] if rng.random() < 0.8 else ["b", "a", "c"]
+            data = _payload(names, rng.normal(0, 1, len(names)).round(2).tolist(),
+                            rng.normal(0, 1, int(rng.integers(1, 3))).tolist(), "<" if rng.random() < 0.9 else ">")
+            if rng.random() < 0.03:
+                data = data[:-5]  # does not decode
+            writer.add_message(channel, log_time=i * 1000, publish_time=i * 1000, data=data)
+        writer.finish()
+    spec = Spec.from_dict({"mode": "message", "channel": [
+        {"topic": "/joints", "field": "position[name=a]", "role": "observation", "width": 0.25},
+        {"topic": "/joints", "field": "velocity[1]", "role": "action", "edges": [0.0]},
+        {"topic": "/joints", "field": "header.frame_id", "role": "observation"}]})
+    old = old_read([path], spec)
+    assert old[0][0][1].n_events > 600
+    assert_same(old, new_read([path], spec))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        [(_, _, report)] = list(read_episodes([path], spec, Vocabulary()))
+    assert 0 < report.undecodable["/joints"] < 30

@@ -10,6 +10,13 @@ payload that fails here is handed to the full decoder, which gives its own verdi
 run of strings equal to the previous message's (the joint names of every JointState)
 is recognized by comparing bytes, not walked again.
 
+Many payloads at once (:meth:`FieldPlan.many`): the first is walked once more to *locate*
+its values (where each leaf the paths read lies in its bytes) and to find the bytes that
+are not values: the encapsulation header, length prefixes, strings and padding. A payload
+of the same size whose every such byte equals the first one's has the same layout, so
+each path's value is at the same offset in it, and the payloads' values are read as
+columns with numpy; the others are walked one by one.
+
 Supported paths: names through nested messages, ending at a primitive, a string, an
 array of them, or one element of such an array by index or by ``[key=value]`` over a
 sibling array. Anything else (arrays of messages, ``wstring``, ``float128``, empty
@@ -20,7 +27,7 @@ from __future__ import annotations
 
 import struct
 from functools import lru_cache
-from typing import Any, Callable, cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -51,41 +58,105 @@ def _parsed(schema_name: str, data: bytes) -> tuple[str, dict]:
     return name, {key: list(fields) for key, (_, fields) in types.items()}
 
 
-def field_plan(channel, fields: list[str]) -> Callable[[bytes], list] | None:
-    """A reader of the values at ``fields`` (field paths) in one payload of ``channel``,
-    or ``None`` when the channel must be decoded whole (see the module docstring).
+class FieldPlan:
+    """Reads the values at some field paths from payloads of one channel: called with one
+    payload, or :meth:`many` for many (see the module docstring)."""
 
-    The reader returns one value per path (:data:`slearn.io.decode.MISSING` where the
-    message lacks the element) and raises :class:`CdrError` when the payload does not
-    decode."""
+    def __init__(self, walk, locate, getters: list, keyed_by_numbers: bool) -> None:
+        self._walk, self._locate, self._getters = walk, locate, getters
+        self._columns = not keyed_by_numbers  # (a numeric key's values decide the element)
+
+    def __call__(self, data: bytes) -> list:
+        """One value per path (:data:`slearn.io.decode.MISSING` where the message lacks
+        the element); raises :class:`CdrError` when the payload does not decode."""
+        obj, _ = self._walked(self._walk, data)
+        return [get(obj) for get in self._getters]
+
+    def many(self, buf: bytes, starts: np.ndarray, ends: np.ndarray) -> tuple[list[list], np.ndarray]:
+        """Per path, the values of the payloads ``buf[starts[i]:ends[i]]`` laid out as the
+        first one is, and which payloads those are; the others are left to the caller."""
+        sizes = ends - starts
+        alike = np.zeros(len(starts), bool)
+        empty: list[list] = [[] for _ in self._getters]
+        if not self._columns or not len(starts):
+            return empty, alike
+        first = buf[int(starts[0]):int(ends[0])]
+        regions: list = []
+        leaves: list = []
+        try:
+            where, _ = self._walked(self._locate, first, regions, leaves)
+        except CdrError:
+            return empty, alike
+        at = [get(where) for get in self._getters]  # a leaf's number, a string, or MISSING
+        if any(isinstance(x, list) or (isinstance(x, int) and not 0 <= x < len(leaves)) for x in at):
+            return empty, alike  # (whole arrays: values that are lists, read one by one)
+        size = len(first)
+        fixed = np.ones(size, bool)  # the bytes that are not values
+        for start, length in regions:
+            fixed[4 + start:4 + start + length] = False
+        template = np.frombuffer(first, np.uint8)[fixed]
+        same = np.flatnonzero(sizes == size)
+        parts: list[list] = [[] for _ in at]
+        step = max(1, _ROWS_BYTES // size)
+        for lo in range(0, len(same), step):  # (rows of a few MB at a time)
+            chunk = same[lo:lo + step]
+            rows = _rows(buf, starts[chunk], size)
+            ok = (rows[:, fixed] == template).all(axis=1)
+            alike[chunk[ok]] = True
+            rows = rows[ok]
+            for part, x in zip(parts, at):
+                if type(x) is int:
+                    offset, dtype = leaves[x]
+                    part += rows[:, 4 + offset:4 + offset + dtype.itemsize].copy().view(dtype)[:, 0].tolist()
+                else:  # a string, the same in every payload alike, or MISSING
+                    part += [x] * len(rows)
+        return parts, alike
+
+    @staticmethod
+    def _walked(walk, data: bytes, *locating) -> tuple[Any, int]:
+        if len(data) < 4 or data[:2] not in (b"\x00\x00", b"\x00\x01"):
+            raise CdrError("invalid or unsupported CDR encapsulation")
+        raw = data[4:]
+        try:
+            obj, pos = walk(raw, 0, "<" if data[1] else ">", *locating)
+        except (struct.error, UnicodeDecodeError, ValueError, IndexError) as err:
+            raise CdrError(str(err)) from None
+        if pos + 4 + 3 < len(data):
+            raise CdrError("CDR message size mismatch")
+        return obj, pos
+
+
+_ROWS_BYTES = 1 << 21  # payload bytes compared at once by FieldPlan.many
+
+
+def _rows(buf: bytes, starts: np.ndarray, size: int) -> np.ndarray:
+    """The ``size`` bytes at each of ``starts`` in ``buf``, one row each."""
+    if not len(starts):
+        return np.zeros((0, size), np.uint8)
+    return np.frombuffer(buf, np.uint8)[starts[:, None] + np.arange(size)]
+
+
+def field_plan(channel, fields: list[str]) -> FieldPlan | None:
+    """A :class:`FieldPlan` of the values at ``fields`` (field paths) in payloads of
+    ``channel``, or ``None`` when the channel must be decoded whole (see the module
+    docstring)."""
     if channel.schema is None or channel.schema_encoding != "ros2msg":
         return None
     try:
         root, types = _types(channel)
         paths = [parse_field_path(f) for f in fields]
         needs: dict = {}
+        numeric_keys: list = []
         for path in paths:
-            if not _mark(types, root, path.steps, needs):
+            if not _mark(types, root, path.steps, needs, numeric_keys):
                 return None
         walk = _message(types, root, needs, set())
+        locate = _message(types, root, needs, set(), locating=True)
     except Exception:  # noqa: BLE001 - any schema this cannot plan is decoded whole
         return None
     if walk is None:
         return None
-    getters = [path.get for path in paths]
-
-    def read(data: bytes) -> list:
-        if len(data) < 4 or data[:2] not in (b"\x00\x00", b"\x00\x01"):
-            raise CdrError("invalid or unsupported CDR encapsulation")
-        raw = data[4:]
-        try:
-            obj, pos = walk(raw, 0, "<" if data[1] else ">")
-        except (struct.error, UnicodeDecodeError, ValueError, IndexError) as err:
-            raise CdrError(str(err)) from None
-        if pos + 4 + 3 < len(data):
-            raise CdrError("CDR message size mismatch")
-        return [get(obj) for get in getters]
-    return read
+    return FieldPlan(walk, locate, [path.get for path in paths], bool(numeric_keys))
 
 
 def _fields(types: dict, name: str) -> list:
@@ -95,8 +166,9 @@ def _fields(types: dict, name: str) -> list:
     return fields
 
 
-def _mark(types: dict, name: str, steps: tuple, needs: dict) -> bool:
-    """Record in ``needs`` the fields of message ``name`` a path reads; whether it can."""
+def _mark(types: dict, name: str, steps: tuple, needs: dict, numeric_keys: list) -> bool:
+    """Record in ``needs`` the fields of message ``name`` a path reads; whether it can.
+    Keys of ``[key=value]`` that are numbers are added to ``numeric_keys``."""
     fields = dict(_fields(types, name))
     if not steps or steps[0][0] != "attr" or steps[0][1] not in fields:
         return False
@@ -105,7 +177,7 @@ def _mark(types: dict, name: str, steps: tuple, needs: dict) -> bool:
     rest = steps[1:]
     if kind == NAME:
         sub = needs.setdefault(field, {})
-        return isinstance(sub, dict) and bool(rest) and _mark(types, args, rest, sub)
+        return isinstance(sub, dict) and bool(rest) and _mark(types, args, rest, sub, numeric_keys)
     if kind == BASE:
         needs[field] = LEAF
         return not rest and _base_ok(args[0])
@@ -122,6 +194,8 @@ def _mark(types: dict, name: str, steps: tuple, needs: dict) -> bool:
                 "float32", "float64", "bool"):
             return False
         needs[key] = LEAF
+        if sibling[1][0] != "string":
+            numeric_keys.append(key)
     return True
 
 
@@ -129,17 +203,22 @@ def _base_ok(typename: str) -> bool:
     return typename == "string" or typename in _SIZES
 
 
-def _message(types: dict, name: str, needs: dict, stack: set):
-    """A walker ``(raw, pos, endian) -> (sparse dict, pos)`` of message ``name``."""
+def _message(types: dict, name: str, needs: dict, stack: set, locating: bool = False):
+    """A walker ``(raw, pos, endian) -> (sparse dict, pos)`` of message ``name``.
+
+    ``locating``: a walker ``(raw, pos, endian, regions, leaves)`` that gives, in place of
+    each value read, its leaf's number in ``leaves`` (``(offset, dtype)`` each, offsets in
+    ``raw``), and adds every value's bytes, read or not, to ``regions`` (``(offset, size)``).
+    """
     if name in stack:
         raise ValueError("recursive message type")
-    steps = [_field(types, fname, desc, needs.get(fname), stack | {name})
+    steps = [_field(types, fname, desc, needs.get(fname), stack | {name}, locating)
              for fname, desc in _fields(types, name)]
 
-    def walk(raw: bytes, pos: int, endian: str):
+    def walk(raw: bytes, pos: int, endian: str, *locating):
         out: dict[str, Any] = {}
         for fname, step in steps:
-            value, pos = step(raw, pos, endian)
+            value, pos = step(raw, pos, endian, *locating)
             if value is not _SKIPPED:
                 out[fname] = value
         return out, pos
@@ -149,25 +228,57 @@ def _message(types: dict, name: str, needs: dict, stack: set):
 _SKIPPED = object()
 
 
-def _field(types: dict, fname: str, desc, need, stack: set):
+def _field(types: dict, fname: str, desc, need, stack: set, locating: bool):
     kind, args = desc
     if kind == NAME:
-        inner = _message(types, args, need if isinstance(need, dict) else {}, stack)
+        inner = _message(types, args, need if isinstance(need, dict) else {}, stack, locating)
         if need is None:
-            return fname, lambda raw, pos, endian: (_SKIPPED, inner(raw, pos, endian)[1])
+            return fname, lambda raw, pos, endian, *located: (_SKIPPED, inner(raw, pos, endian, *located)[1])
         return fname, inner
     if kind == BASE:
-        return fname, _base(args[0], need is not None)
+        if args[0] == "string":
+            return fname, _passing(_string(need is not None), locating)
+        return fname, _located(_base(args[0], need is not None), args[0], 0, need is not None, locating)
     element, count = args
     if element[0] != BASE:
-        inner = _message(types, element[1], {}, stack)
+        inner = _message(types, element[1], {}, stack, locating)
         return fname, _message_array(inner, count if kind == ARRAY else None, _align_of(types, element))
     typename = element[1][0]
     if typename == "string":
-        return fname, _strings(count if kind == ARRAY else None, need is not None)
+        return fname, _passing(_strings(count if kind == ARRAY else None, need is not None), locating)
     if typename not in _SIZES:
         raise KeyError(typename)
-    return fname, _primitives(typename, count if kind == ARRAY else None, need is not None)
+    count = count if kind == ARRAY else None
+    return fname, _located(_primitives(typename, count, need is not None), typename, count, need is not None, locating)
+
+
+def _passing(step, locating: bool):
+    """``step`` for a locating walker: strings are not values (their bytes fix the layout)."""
+    if not locating:
+        return step
+    return lambda raw, pos, endian, regions, leaves: step(raw, pos, endian)
+
+
+def _located(step, typename: str, count: int | None, read: bool, locating: bool):
+    """``step`` of a primitive (``count`` 0), a fixed array of ``count`` of them or a
+    sequence of them (``count`` None), for a locating walker: see :func:`_message`."""
+    if not locating:
+        return step
+    size = _SIZES[typename]
+    dtype = np.dtype(_DTYPES.get(typename, typename))
+
+    def locate(raw: bytes, pos: int, endian: str, regions: list, leaves: list):
+        value, end = step(raw, pos, endian)  # (checks everything first)
+        n = 1 if count == 0 else _length(raw, pos, endian, count, size)[0]
+        start = end - size * n
+        if n:
+            regions.append((start, size * n))
+        if not read:
+            return _SKIPPED, end
+        first = len(leaves)
+        leaves += [(start + size * j, dtype.newbyteorder(cast(Any, endian))) for j in range(n)]
+        return (first if count == 0 else np.arange(first, first + n)), end
+    return locate
 
 
 def _align_of(types: dict, desc) -> int:
@@ -273,10 +384,10 @@ def _primitives(typename: str, count: int | None, read: bool):
 
 
 def _message_array(inner, count: int | None, align: int):
-    def step(raw: bytes, pos: int, endian: str):
+    def step(raw: bytes, pos: int, endian: str, *locating):
         n, pos = _length(raw, pos, endian, count, 1)  # each element takes a byte at least
         for _ in range(n):
             pos = (pos + align - 1) & -align
-            _, pos = inner(raw, pos, endian)
+            _, pos = inner(raw, pos, endian, *locating)
         return _SKIPPED, pos
     return step

@@ -156,7 +156,7 @@ class _ChannelReader:
             self.decoder = cache.require(channel)
         except DecodeError as err:
             raise SpecError(f"{path}: the spec selects topic {channel.topic!r}, but {err}") from err
-        self.plan: Callable[[bytes], list] | None = None
+        self.plan: cdr.FieldPlan | None = None
         if "_rosbags_cdr_decoder" in getattr(self.decoder, "__qualname__", ""):
             self.plan = cdr.field_plan(channel, [e.spec.field for e in entries])
         if self.decoder is json.loads:
@@ -167,19 +167,40 @@ class _ChannelReader:
     def values(self, batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[list]:
         """Per entry, the value of each of messages ``on`` of ``batch`` (:data:`MISSING` when
         it has none or does not decode; undecodable payloads are counted in ``report``)."""
-        objs = _json_joined(*_joined(batch, on)) if self.decoder is _json and self.plan is None else None
+        if self.plan is not None:
+            return self._plan_values(batch, on, report)
+        objs = _json_joined(*_joined(batch, on)) if self.decoder is _json else None
         if objs is None:
             payloads = [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
-            offsets = _where(batch, on, report)
-            if self.plan is not None:
-                rows = [self._plan_row(data, offset, report) for data, offset in zip(payloads, offsets)]
-                return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
-            objs = [self._decode(data, offset, report) for data, offset in zip(payloads, offsets)]
+            objs = [self._decode(data, offset, report) for data, offset in zip(payloads, _where(batch, on, report))]
         return [self._field(get, entry, objs) for get, entry in zip(self.getters, self.entries)]
+
+    def _plan_values(self, batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[list]:
+        """:meth:`values` through the CDR plan: the payloads laid out as the first one is as
+        columns (``FieldPlan.many``), the others one by one."""
+        plan = cast(cdr.FieldPlan, self.plan)
+        columns, alike = plan.many(batch.buf, batch.starts[on], batch.ends[on])
+        if alike.all():
+            return columns
+        rest = on[~alike]
+        rows = [self._plan_row(batch.buf[a:b], offset, report) for a, b, offset in
+                zip(batch.starts[rest].tolist(), batch.ends[rest].tolist(), _where(batch, rest, report))]
+        if not alike.any():
+            return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
+        fast, slow = np.flatnonzero(alike).tolist(), np.flatnonzero(~alike).tolist()
+        merged = []
+        for k, column in enumerate(columns):
+            out: list = [None] * len(on)
+            for i, value in zip(fast, column):
+                out[i] = value
+            for i, row in zip(slow, rows):
+                out[i] = row[k]
+            merged.append(out)
+        return merged
 
     def _plan_row(self, data: bytes, offset: int, report: ReadReport) -> list:
         try:
-            return cast(Callable[[bytes], list], self.plan)(data)  # rows are read only with a plan
+            return cast(cdr.FieldPlan, self.plan)(data)  # rows are read only with a plan
         except cdr.CdrError:  # the full decoder gives its own verdict
             from slearn.io.serialize import _field_value
 
