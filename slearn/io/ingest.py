@@ -41,7 +41,7 @@ BATCH_MESSAGES = 1 << 16  # messages decoded at once
 _NO_SYMBOL = -1
 _NO_BIN = np.iinfo(np.int64).min
 _UNSEEN = object()
-_GATHER_BYTES = 1 << 22  # payload bytes of a channel's batch joined with numpy (beyond: by slices)
+_GATHER_BYTES = 1 << 20  # payload bytes of a channel's batch joined with numpy (beyond: by slices)
 _PLAIN_KEYS = frozenset((str, int))    # values that are their own keys
 _PLAIN_NUMBERS = frozenset((int, float))  # values binned as one array
 
