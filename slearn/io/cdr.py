@@ -88,8 +88,9 @@ class FieldPlan:
         except CdrError:
             return empty, alike
         at = [get(where) for get in self._getters]  # a leaf's number, a string, or MISSING
-        if any(isinstance(x, list) or (isinstance(x, int) and not 0 <= x < len(leaves)) for x in at):
+        if any(isinstance(x, list) for x in at):
             return empty, alike  # (whole arrays: values that are lists, read one by one)
+        located = {x: _leaf(leaves, x) for x in at if type(x) is int}
         size = len(first)
         fixed = np.ones(size, bool)  # the bytes that are not values
         for start, length in regions:
@@ -106,7 +107,7 @@ class FieldPlan:
             rows = rows[ok]
             for part, x in zip(parts, at):
                 if type(x) is int:
-                    offset, dtype = leaves[x]
+                    offset, dtype = located[x]
                     part += rows[:, 4 + offset:4 + offset + dtype.itemsize].copy().view(dtype)[:, 0].tolist()
                 else:  # a string, the same in every payload alike, or MISSING
                     part += [x] * len(rows)
@@ -127,6 +128,14 @@ class FieldPlan:
 
 
 _ROWS_BYTES = 1 << 21  # payload bytes compared at once by FieldPlan.many
+
+
+def _leaf(leaves: list, number: int) -> tuple[int, np.dtype]:
+    """Leaf ``number``'s offset in the payload after its header, and its dtype."""
+    for first, n, start, dtype in leaves:
+        if first <= number < first + n:
+            return start + (number - first) * dtype.itemsize, dtype
+    raise CdrError(f"no leaf {number}")  # (not reached: numbers come from the walk)
 
 
 def _rows(buf: bytes, starts: np.ndarray, size: int) -> np.ndarray:
@@ -207,8 +216,9 @@ def _message(types: dict, name: str, needs: dict, stack: set, locating: bool = F
     """A walker ``(raw, pos, endian) -> (sparse dict, pos)`` of message ``name``.
 
     ``locating``: a walker ``(raw, pos, endian, regions, leaves)`` that gives, in place of
-    each value read, its leaf's number in ``leaves`` (``(offset, dtype)`` each, offsets in
-    ``raw``), and adds every value's bytes, read or not, to ``regions`` (``(offset, size)``).
+    each value read, its leaf's number (leaves are numbered in walk order; ``leaves`` gets
+    ``(first number, count, offset in raw, dtype)`` per field read), and adds every value's
+    bytes, read or not, to ``regions`` (``(offset, size)``).
     """
     if name in stack:
         raise ValueError("recursive message type")
@@ -238,7 +248,7 @@ def _field(types: dict, fname: str, desc, need, stack: set, locating: bool):
     if kind == BASE:
         if args[0] == "string":
             return fname, _passing(_string(need is not None), locating)
-        return fname, _located(_base(args[0], need is not None), args[0], 0, need is not None, locating)
+        return fname, _located(_base(args[0], need is not None), args[0], _SCALAR, need is not None, locating)
     element, count = args
     if element[0] != BASE:
         inner = _message(types, element[1], {}, stack, locating)
@@ -259,9 +269,12 @@ def _passing(step, locating: bool):
     return lambda raw, pos, endian, regions, leaves: step(raw, pos, endian)
 
 
+_SCALAR = -1  # the count of a primitive that is not in an array
+
+
 def _located(step, typename: str, count: int | None, read: bool, locating: bool):
-    """``step`` of a primitive (``count`` 0), a fixed array of ``count`` of them or a
-    sequence of them (``count`` None), for a locating walker: see :func:`_message`."""
+    """``step`` of a primitive (``count`` ``_SCALAR``), a fixed array of ``count`` of them or
+    a sequence of them (``count`` None), for a locating walker: see :func:`_message`."""
     if not locating:
         return step
     size = _SIZES[typename]
@@ -269,15 +282,15 @@ def _located(step, typename: str, count: int | None, read: bool, locating: bool)
 
     def locate(raw: bytes, pos: int, endian: str, regions: list, leaves: list):
         value, end = step(raw, pos, endian)  # (checks everything first)
-        n = 1 if count == 0 else _length(raw, pos, endian, count, size)[0]
+        n = 1 if count == _SCALAR else _length(raw, pos, endian, count, size)[0]
         start = end - size * n
         if n:
             regions.append((start, size * n))
         if not read:
             return _SKIPPED, end
-        first = len(leaves)
-        leaves += [(start + size * j, dtype.newbyteorder(cast(Any, endian))) for j in range(n)]
-        return (first if count == 0 else np.arange(first, first + n)), end
+        first = leaves[-1][0] + leaves[-1][1] if leaves else 0
+        leaves.append((first, n, start, dtype.newbyteorder(cast(Any, endian))))
+        return (first if count == _SCALAR else np.arange(first, first + n)), end
     return locate
 
 
