@@ -88,7 +88,7 @@ def _joined(batch: MessageBatch, on: np.ndarray) -> tuple[bytes, np.ndarray]:
     sizes = batch.ends[on] - starts
     total = int(sizes.sum())
     if total > _GATHER_BYTES or not sizes.all() or not len(sizes):
-        return b",".join([batch.buf[a:b] for a, b in zip(starts.tolist(), (starts + sizes).tolist())]), sizes
+        return b",".join(_payloads(batch, on)), sizes
     message = np.repeat(np.arange(len(sizes)), sizes)  # the message of each payload byte
     at = np.arange(total)
     joined = np.full(total + len(sizes) - 1, ord(","), np.uint8)
@@ -171,8 +171,8 @@ class _ChannelReader:
             return self._plan_values(batch, on, report)
         objs = _json_joined(*_joined(batch, on)) if self.decoder is _json else None
         if objs is None:
-            payloads = [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
-            objs = [self._decode(data, offset, report) for data, offset in zip(payloads, _where(batch, on, report))]
+            objs = [self._decode(data, offset, report)
+                    for data, offset in zip(_payloads(batch, on), _where(batch, on, report))]
         return [self._field(get, entry, objs) for get, entry in zip(self.getters, self.entries)]
 
     def _plan_values(self, batch: MessageBatch, on: np.ndarray, report: ReadReport) -> list[list]:
@@ -183,20 +183,10 @@ class _ChannelReader:
         if alike.all():
             return columns
         rest = on[~alike]
-        rows = [self._plan_row(batch.buf[a:b], offset, report) for a, b, offset in
-                zip(batch.starts[rest].tolist(), batch.ends[rest].tolist(), _where(batch, rest, report))]
-        if not alike.any():
-            return [list(column) for column in zip(*rows)] if rows else [[] for _ in self.entries]
-        fast, slow = np.flatnonzero(alike).tolist(), np.flatnonzero(~alike).tolist()
-        merged = []
-        for k, column in enumerate(columns):
-            out: list = [None] * len(on)
-            for i, value in zip(fast, column):
-                out[i] = value
-            for i, row in zip(slow, rows):
-                out[i] = row[k]
-            merged.append(out)
-        return merged
+        rows = [self._plan_row(data, offset, report)
+                for data, offset in zip(_payloads(batch, rest), _where(batch, rest, report))]
+        order = np.argsort(np.concatenate((np.flatnonzero(alike), np.flatnonzero(~alike))))  # back in message order
+        return [_taken(column + [row[k] for row in rows], order) for k, column in enumerate(columns)]
 
     def _plan_row(self, data: bytes, offset: int, report: ReadReport) -> list:
         try:
@@ -667,6 +657,11 @@ class _LogReader:
             self.stream = self.new_stream(self.path)
             self.stream.key = 0
         self.stream.finish()
+
+
+def _payloads(batch: MessageBatch, on: np.ndarray) -> list[bytes]:
+    """The payloads of messages ``on`` of ``batch``, one bytes object each."""
+    return [batch.buf[a:b] for a, b in zip(batch.starts[on].tolist(), batch.ends[on].tolist())]
 
 
 def _taken(values: list, at: np.ndarray) -> list:
