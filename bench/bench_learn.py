@@ -4,7 +4,9 @@ Issue 12 asks learning to run at >= 1/3 of a C implementation of the same rule. 
 is what ``slearn learn`` does to an encoded episode (slearn/core/online.py with learning on):
 count every occurrence of every context of every view and train the mixer's weights and
 change detectors. ``bench/c/learn.c`` is that rule in plain C (compiled now with the system
-compiler; skipped without one). Both run on the same encoded steps; the library the C code
+compiler; skipped without one), twice: the plain loop, and with the prefetches slearn's
+kernel makes (``-DPREFETCH``: the lookups of a step's contexts ask for their memory at
+once), the anchor for slearn as it runs. Both run on the same encoded steps; the library the C code
 builds is exported with slearn's own export and compared array by array (patterns, counts,
 recency, fresh counts, weights, detectors, epochs).
 
@@ -52,14 +54,16 @@ class _Params(ctypes.Structure):
                 ("fresh_tie", ctypes.c_double)]
 
 
-def load_c_learn(folder: Path):
-    """The compiled ``slearn_learn`` of ``bench/c/learn.c``, or ``None`` without a compiler."""
+def load_c_learn(folder: Path, prefetch: bool = False):
+    """The compiled ``slearn_learn`` of ``bench/c/learn.c`` (with ``-DPREFETCH``), or
+    ``None`` without a compiler."""
     compiler = next((c for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
     if compiler is None:
         return None
-    library = folder / "liblearn.so"
-    subprocess.run([compiler, "-O2", "-ffp-contract=off", "-shared", "-fPIC", "-o", str(library),
-                    str(_SOURCE), "-lm"], check=True, capture_output=True)
+    library = folder / f"liblearn{'-prefetch' if prefetch else ''}.so"
+    subprocess.run([compiler, "-O2", "-ffp-contract=off", *(["-DPREFETCH"] if prefetch else []),
+                    "-shared", "-fPIC", "-o", str(library), str(_SOURCE), "-lm"],
+                   check=True, capture_output=True)
     lib = ctypes.CDLL(str(library))
     lib.slearn_learn.restype = ctypes.c_int64
     lib.slearn_learn.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
@@ -102,7 +106,7 @@ def same_library(a: PatternLibrary, b: PatternLibrary) -> list[str]:
     return diff + (["clock"] if a.clock != b.clock else [])
 
 
-def measure(name: str, episode, vocabulary, c_learn, repeat: int) -> dict:
+def measure(name: str, episode, vocabulary, c_learns: dict, repeat: int) -> dict:
     """Encode once; learn with slearn and with C; compare the libraries."""
     template = PatternLibrary(vocabulary=vocabulary)
     started = time.perf_counter()
@@ -119,24 +123,26 @@ def measure(name: str, episode, vocabulary, c_learn, repeat: int) -> dict:
     slearn_s = best_seconds(learn_slearn, repeat)
     row = {"stream": name, "steps": len(codes), "events": int(episode.n_events),
            "encode_s": encode_s, "slearn_s": slearn_s, "patterns": len(result["slearn"])}
-    if c_learn is not None:
-        size = result["slearn"].tree.size
-        nodes, entries = int(size[0]) + 64, int(size[1]) + 64
+    size = result["slearn"].tree.size
+    nodes, entries = int(size[0]) + 64, int(size[1]) + 64
+    for variant, c_learn in c_learns.items():  # "c": the plain loop, "cp": with prefetches
 
-        def learn_c():
-            result["c"] = c_library(c_learn, template, codes, nodes, entries)
+        def learn_c(variant=variant, c_learn=c_learn):
+            result[variant] = c_library(c_learn, template, codes, nodes, entries)
 
-        row["c_s"] = best_seconds(learn_c, repeat)
-        row["ratio"] = row["c_s"] / slearn_s
-        row["differences"] = same_library(result["slearn"], result["c"])
+        row[f"{variant}_s"] = best_seconds(learn_c, repeat)
+        row[f"{variant}_ratio"] = row[f"{variant}_s"] / slearn_s
+        row["differences"] = sorted(set(row.get("differences", [])) |
+                                    set(same_library(result["slearn"], result[variant])))
     return row
 
 
 def render(rows: list[dict]) -> str:
     lines = [f"{'stream':<22} {'steps':>10} {'slearn M ev/s':>14} {'C M ev/s':>10} {'slearn/C':>9} "
-             f"{'encode M ev/s':>14}  library"]
+             f"{'C+prefetch':>11} {'slearn/C+p':>11} {'encode M ev/s':>14}  library"]
     for r in rows:
-        c = f"{r['events'] / r['c_s'] / 1e6:10.2f} {r['ratio']:9.2f}" if "c_s" in r else f"{'-':>10} {'-':>9}"
+        c = " ".join(f"{r['events'] / r[f'{v}_s'] / 1e6:{w}.2f} {r[f'{v}_ratio']:{w2}.2f}" if f"{v}_s" in r
+                     else f"{'-':>{w}} {'-':>{w2}}" for v, w, w2 in (("c", 10, 9), ("cp", 11, 11)))
         same = ("byte-identical" if not r.get("differences") else "DIFFERS: " + ", ".join(r["differences"])) \
             if "c_s" in r else "-"
         lines.append(f"{r['stream']:<22} {r['steps']:>10,} {r['events'] / r['slearn_s'] / 1e6:14.2f} {c} "
@@ -153,14 +159,15 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="slearn-clearn-") as folder:
-        c_learn = load_c_learn(Path(folder))
+        c_learns = {v: f for v, f in (("c", load_c_learn(Path(folder))),
+                                      ("cp", load_c_learn(Path(folder), prefetch=True))) if f is not None}
         streams = [(f"pointer {args.condition}",
                     simulate(PointerConfig(args.condition, trials=args.trials)).to_episode(),
                     pointer_vocabulary())]
         if args.arm:
             streams.append(("arm 4 joints, all", simulate_arm(ArmConfig(4, args.trials // 4, 0, "all"))
                             .to_episode(), arm_vocabulary(4)))
-        rows = [measure(name, episode, vocabulary, c_learn, args.repeat)
+        rows = [measure(name, episode, vocabulary, c_learns, args.repeat)
                 for name, episode, vocabulary in streams]
     print(json.dumps(rows, default=str) if args.json else render(rows))
 

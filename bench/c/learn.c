@@ -18,10 +18,20 @@
  * A view's ring of tokens is a power of two wide (slearn/core/views.py). Capacities are
  * given by the caller (no growth), so ids and every number match slearn's.
  *
- * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm
+ * With -DPREFETCH, the lookups ask the CPU for their memory ahead, where slearn's kernel
+ * does (context_tree.fetch_nodes, fetch_entry_slots, fetch_entries): the anchor for slearn
+ * as it runs. Without, the plain loop.
+ *
+ * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm [-DPREFETCH]
  */
 #include <math.h>
 #include <stdint.h>
+
+#ifdef PREFETCH
+#define FETCH(address) __builtin_prefetch((address), 0, 3)
+#else
+#define FETCH(address) ((void)0)
+#endif
 
 #define EMPTY (-1)
 #define FREQUENT 0
@@ -51,8 +61,11 @@ static uint64_t path_hash(uint64_t h, int32_t tok) {
 
 static uint64_t root_path(int32_t root) { return path_hash(0x243F6A8885A308D3ULL, root); }
 
+/* The slot of a path hash (hashtable.scaled). */
+static int64_t slot_of(uint64_t h, int64_t n) { return (int64_t)(((h >> 32) * (uint64_t)n) >> 32); }
+
 static int32_t child_or_add(tree_t *t, int32_t node, int32_t tok, uint64_t h) {
-    int64_t s = (int64_t)(((h >> 32) * (uint64_t)t->node_slot_count) >> 32);
+    int64_t s = slot_of(h, t->node_slot_count);
     for (;;) {
         int32_t r = t->node_slots[s];
         if (r == EMPTY) break;
@@ -185,6 +198,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
     while (W < K) W *= 2;
     const int64_t M = W - 1;
     int32_t nodes[256];
+    uint64_t hashes[256];
     int32_t cand[257 * KINDS];
     for (int64_t step = 0; step < n_steps; step++) {
         int32_t a = action[step];
@@ -199,9 +213,22 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 uint64_t h = root_path(node);
                 int n = 0, m = 0;
                 for (int k = 1; k <= depth; k++) {
+                    h = path_hash(h, recent[v * W + ((filled[v] - k) & M)]);
+                    hashes[k] = h;
+                    FETCH(&t->node_slots[slot_of(hashes[k], t->node_slot_count)]);
+                }
+#ifdef PREFETCH
+                for (int k = 1; k <= depth; k++) {
+                    int32_t found = t->node_slots[slot_of(hashes[k], t->node_slot_count)];
+                    if (found >= 0) {
+                        FETCH(&t->parent[found]); FETCH(&t->token[found]);
+                        FETCH(&t->first[found]); FETCH(&t->best[found]);
+                    }
+                }
+#endif
+                for (int k = 1; k <= depth; k++) {
                     int32_t tok = recent[v * W + ((filled[v] - k) & M)];
-                    h = path_hash(h, tok);
-                    node = child_or_add(t, node, tok, h);
+                    node = child_or_add(t, node, tok, hashes[k]);
                     nodes[k] = node;
                     n = k;
                 }
@@ -215,6 +242,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                     cand[k * KINDS + FRESH] = (ep > 0 && current) ? t->outcome[fb] : -1;
                     m = k;
                 }
+                for (int k = 1; k <= n; k++) FETCH(&t->entry_slots[home(nodes[k], x, t->entry_slot_count)]);
                 double *w = &weights[(int64_t)v * K * KINDS];
                 update(w, cand, m, K, x, p->beta, p->floor_);
                 int kt = trusted_length(w, cand, m, ep);
@@ -226,6 +254,15 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                         epoch[v] += 1;
                 }
                 ep = epoch[v];
+#ifdef PREFETCH
+                for (int k = 1; k <= n; k++) {
+                    int32_t e = t->entry_slots[home(nodes[k], x, t->entry_slot_count)];
+                    if (e >= 0) {
+                        FETCH(&t->owner[e]); FETCH(&t->outcome[e]); FETCH(&t->count[e]);
+                        FETCH(&t->last_seen[e]); FETCH(&t->fresh[e]);
+                    }
+                }
+#endif
                 for (int k = 1; k <= n; k++) {
                     int32_t nd = nodes[k];
                     refresh(t, nd, ep);

@@ -2,6 +2,9 @@
 
 * :func:`kernel` compiles a function called once per batch of work (a whole episode, a
   table to rebuild). It may allocate; it reads the arrays of its state into locals once.
+* :func:`prefetch` asks the CPU for an array element ahead of its use (an intrinsic numba
+  has no name for): lookups whose slots are known before they are made then wait for
+  memory together, not one after another.
 * :func:`helper` compiles a function called per step from a kernel. Helpers are compiled
   without numba's reference counting (``_nrt=False``): they take raw arrays and scalars,
   never allocate, and a call costs what a C call costs. (A helper inlined into its caller
@@ -29,7 +32,9 @@ from pathlib import Path
 from typing import Any
 
 import numba
-from numba.core import types
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 _MARKER = b"from slearn.core._jit import"
 _PACKAGES = ("slearn", "slearn.replay", "slearn.recorders")
@@ -59,6 +64,29 @@ def helper(function=None, *, python: bool = False):
         options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
     with _slearn_cache():
         return _plain_calls(numba.njit(**options)(function))
+
+
+@intrinsic
+def prefetch(typingctx, array, index):
+    """``prefetch(array, i)`` in compiled code: bring ``array[i]`` into the CPU's caches
+    (LLVM's ``llvm.prefetch``; no effect on any result, no bounds check needed: a prefetch
+    never faults). Learning a library of 650,000 patterns spent most of its time waiting for
+    one hash slot after another; fetching the slots of a step's contexts first made it
+    1.2x faster (``bench_learn.py``)."""
+    if not isinstance(array, types.Array) or not isinstance(index, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        data = context.make_array(array_type)(context, builder, args[0])
+        at = cgutils.get_item_pointer(context, builder, array_type, data, [args[1]], wraparound=False)
+        i32 = ir.IntType(32)
+        declared = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [cgutils.voidptr_t, i32, i32, i32]), "llvm.prefetch.p0")
+        read, keep_in_all_levels, data_cache = (ir.Constant(i32, x) for x in (0, 3, 1))
+        builder.call(declared, [builder.bitcast(at, cgutils.voidptr_t), read, keep_in_all_levels, data_cache])
+        return context.get_dummy_value()
+    return types.void(array, index), codegen
 
 
 def direct_call(dispatcher, *example):
@@ -139,7 +167,8 @@ def kernel_sources() -> list[Path]:
         spec = importlib.util.find_spec(name)
         if spec is not None and spec.submodule_search_locations:
             files.update(p for folder in spec.submodule_search_locations for p in Path(folder).rglob("*.py"))
-    return sorted((p for p in files if _MARKER in p.read_bytes()), key=lambda p: (p.parent.name, p.name))
+    files = {p for p in files if _MARKER in p.read_bytes()} | {Path(__file__)}  # prefetch is compiled in
+    return sorted(files, key=lambda p: (p.parent.name, p.name))
 
 
 def source_fingerprint() -> str:

@@ -31,8 +31,8 @@ from typing import NamedTuple
 import numpy as np
 
 from slearn.core import hashtable
-from slearn.core._jit import helper, kernel
-from slearn.core.hashtable import EMPTY, grown, probe, probe_from, scaled
+from slearn.core._jit import helper, kernel, prefetch
+from slearn.core.hashtable import EMPTY, grown, home, probe, probe_from, scaled
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _SEED = np.uint64(0x243F6A8885A308D3)
@@ -195,6 +195,45 @@ def child_or_add(node_slots, parent, token, first, best, newest, fresh_best, epo
     node_slots[s] = new
     size[0] = new + 1
     return new
+
+
+@helper
+def fetch_nodes(node_slots, parent, token, first, best, hashes, depth):
+    """Ask the CPU for what looking up the contexts ``1..depth`` of a view will read: the
+    slot of each path hash ``hashes[k]``, then the node each slot holds (the node sought
+    when it exists). Each lookup then finds its memory on the way, instead of waiting for
+    it after the lookup before it (:func:`slearn.core._jit.prefetch`)."""
+    for k in range(1, depth + 1):
+        prefetch(node_slots, scaled(node_slots, hashes[k]))
+    for k in range(1, depth + 1):
+        found = node_slots[scaled(node_slots, hashes[k])]
+        if found >= 0:
+            prefetch(parent, found)
+            prefetch(token, found)
+            prefetch(first, found)
+            prefetch(best, found)
+
+
+@helper
+def fetch_entry_slots(entry_slots, nodes, n, out):
+    """Ask the CPU for the home slot of the entry ``(nodes[k], out)`` of each context
+    ``1..n`` (counting the outcome ``out`` will probe them; see :func:`fetch_nodes`)."""
+    for k in range(1, n + 1):
+        prefetch(entry_slots, home(entry_slots, nodes[k], out))
+
+
+@helper
+def fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, out):
+    """After :func:`fetch_entry_slots` (and some work between): the entries those slots
+    hold, which counting ``out`` reads and writes."""
+    for k in range(1, n + 1):
+        e = entry_slots[home(entry_slots, nodes[k], out)]
+        if e >= 0:
+            prefetch(owner, e)
+            prefetch(outcome, e)
+            prefetch(count, e)
+            prefetch(last_seen, e)
+            prefetch(fresh, e)
 
 
 @helper

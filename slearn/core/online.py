@@ -28,6 +28,9 @@ from slearn.core.context_tree import (
     child_or_add,
     credit,
     entry_or_add,
+    fetch_entries,
+    fetch_entry_slots,
+    fetch_nodes,
     hit_probability,
     node_total,
     path_hash,
@@ -120,6 +123,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
     nodes = np.empty(K + 1, np.int32)
+    hashes = np.empty(K + 1, np.uint64)
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
     ranked = np.empty(out.top.shape[1], np.int32)  # the entry behind each place of a ranking
     learn = run.learn
@@ -148,8 +152,12 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                 node, n = root[v], 0
                 h = root_path(node)
                 for k in range(1, depth + 1):
+                    h = path_hash(h, recent[v, (filled[v] - k) & M])
+                    hashes[k] = h
+                fetch_nodes(node_slots, parent, tok_of, first, best, hashes, depth)
+                for k in range(1, depth + 1):
                     t = recent[v, (filled[v] - k) & M]
-                    h = path_hash(h, t)
+                    h = hashes[k]
                     node = child_or_add(node_slots, parent, tok_of, first, best, newest, fresh_best, node_epoch,
                                         size, node, t, h) if learn \
                         else child(node_slots, parent, tok_of, node, t, h)
@@ -172,6 +180,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                 elif run.record and run.hold and held[v] >= 0:
                     record_hold(out, r, held[v])
                 if learn:
+                    fetch_entry_slots(entry_slots, nodes, n, x)
                     update(weights, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
                     if kt > 0:
@@ -182,6 +191,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                         if detect(weights, detector, v, outcome[b] == x, p_hit):
                             epoch[v] += 1
                     ep = epoch[v]
+                    fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, x)
                     for k in range(1, n + 1):
                         nd = nodes[k]
                         refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
