@@ -325,3 +325,18 @@ def test_a_rebuilt_node_table_is_the_one_learning_built_and_needs_parents_first(
     with pytest.raises(ValueError, match="numbered before its parent"):
         rebuild_nodes(slots, parent, tree.token, n)
 
+
+def test_a_rebuilt_entry_table_is_the_one_learning_built():
+    """Entries are placed by the hash of (node, outcome) as they are added; rebuilding (which
+    takes the first empty slot from each entry's home, and looks ahead) places them the same
+    way, slot for slot, whatever was in the table before."""
+    from slearn.core import hashtable
+    from slearn.recorders.pointer import PointerConfig, simulate
+
+    library = PatternLibrary()
+    library.learn(simulate(PointerConfig("delay", trials=3000, seed=4)).to_episode())
+    tree, m = library.tree, int(library.tree.size[1])
+    slots = np.random.default_rng(0).integers(-1, m, len(tree.entry_slots)).astype(np.int32)
+    hashtable.rebuild(slots, tree.owner, tree.outcome, 0, m)
+    assert np.array_equal(slots, tree.entry_slots) and m > hashtable.AHEAD * 100
+

@@ -163,11 +163,16 @@ def rebuild_nodes(node_slots, parent, token, n):
         p = parent[r]
         if p < 0:
             h[r] = root_path(r)
-            continue
-        if p >= r:
+        elif p >= r:
             raise ValueError("a context tree's node is numbered before its parent")
-        h[r] = path_hash(h[p], token[r])
-        node_slots[probe_from(node_slots, parent, token, p, token[r], scaled(node_slots, h[r]))] = r
+        else:
+            h[r] = path_hash(h[p], token[r])
+    for r in range(n):  # nodes are unique: each takes the first empty slot from its own
+        q = r + hashtable.AHEAD
+        if q < n:
+            prefetch(node_slots, scaled(node_slots, h[q]))
+        if parent[r] >= 0:
+            node_slots[hashtable.free_from(node_slots, scaled(node_slots, h[r]))] = r
 
 
 @helper

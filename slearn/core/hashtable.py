@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from slearn.core._jit import helper, kernel
+from slearn.core._jit import helper, kernel, prefetch
 
 EMPTY = -1
+AHEAD = 16
+"""Records a table's rebuild looks ahead (the slot it asks the CPU for)."""
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
@@ -90,8 +92,25 @@ def find(slots, a_of, b_of, a, b):
 
 @kernel
 def rebuild(slots, a_of, b_of, first, n):
-    """Empty ``slots`` and insert records ``first..n-1`` (a root record has ``a_of == -1``)."""
+    """Empty ``slots`` and insert records ``first..n-1`` (a root record has ``a_of == -1``).
+
+    Pairs are unique, so a record takes the first empty slot from its home; the home of the
+    record ``AHEAD`` places on is asked for meanwhile (:func:`slearn.core._jit.prefetch`)."""
     slots[:] = EMPTY
     for r in range(first, n):
+        q = r + AHEAD
+        if q < n and a_of[q] >= 0:
+            prefetch(slots, home(slots, a_of[q], b_of[q]))
         if a_of[r] >= 0:
-            slots[probe(slots, a_of, b_of, a_of[r], b_of[r])] = r  # pairs are unique: an empty slot
+            slots[free_from(slots, home(slots, a_of[r], b_of[r]))] = r
+
+
+@helper
+def free_from(slots, s):
+    """The first empty slot from slot ``s`` on (inserting a pair known to be absent)."""
+    n = len(slots)
+    while slots[s] != EMPTY:
+        s += 1
+        if s == n:
+            s = 0
+    return s
