@@ -202,6 +202,12 @@ def child_or_add(node_slots, parent, token, first, best, newest, fresh_best, epo
     return new
 
 
+FETCH_SLOTS = 1 << 18
+"""Hash tables of more slots than this (1 MiB) are prefetched (:func:`fetch_nodes`); smaller
+ones stay in the CPU's caches, where asking ahead costs more than it saves (5 % of online
+learning on a library of 9,000 contexts; 15-25 % saved on one of 650,000)."""
+
+
 @helper
 def fetch_nodes(node_slots, parent, token, first, best, hashes, depth):
     """Ask the CPU for what looking up the contexts ``1..depth`` of a view will read: the

@@ -24,6 +24,7 @@ import numpy as np
 
 from slearn.core._jit import helper, kernel
 from slearn.core.context_tree import (
+    FETCH_SLOTS,
     child,
     child_or_add,
     credit,
@@ -127,6 +128,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     cand = np.full((K + 1, N_KINDS), -1, np.int32)
     ranked = np.empty(out.top.shape[1], np.int32)  # the entry behind each place of a ranking
     learn = run.learn
+    fetch_node = len(node_slots) > FETCH_SLOTS  # tables past the CPU's caches
+    fetch_entry = len(entry_slots) > FETCH_SLOTS
     while step < len(action):
         r0, r1 = offsets[step], offsets[step + 1]
         need = K * (r1 - r0)
@@ -154,7 +157,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                 for k in range(1, depth + 1):
                     h = path_hash(h, recent[v, (filled[v] - k) & M])
                     hashes[k] = h
-                fetch_nodes(node_slots, parent, tok_of, first, best, hashes, depth)
+                if fetch_node:
+                    fetch_nodes(node_slots, parent, tok_of, first, best, hashes, depth)
                 for k in range(1, depth + 1):
                     t = recent[v, (filled[v] - k) & M]
                     h = hashes[k]
@@ -180,7 +184,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                 elif run.record and run.hold and held[v] >= 0:
                     record_hold(out, r, held[v])
                 if learn:
-                    fetch_entry_slots(entry_slots, nodes, n, x)
+                    if fetch_entry:
+                        fetch_entry_slots(entry_slots, nodes, n, x)
                     update(weights, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
                     if kt > 0:
@@ -191,7 +196,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                         if detect(weights, detector, v, outcome[b] == x, p_hit):
                             epoch[v] += 1
                     ep = epoch[v]
-                    fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, x)
+                    if fetch_entry:
+                        fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, x)
                     for k in range(1, n + 1):
                         nd = nodes[k]
                         refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
