@@ -19,8 +19,9 @@
  * given by the caller (no growth), so ids and every number match slearn's.
  *
  * With -DPREFETCH, the lookups ask the CPU for their memory ahead, where slearn's kernel
- * does (context_tree.fetch_nodes, fetch_entry_slots, fetch_entries): the anchor for slearn
- * as it runs. Without, the plain loop.
+ * does (context_tree.fetch_nodes, fetch_entry_slots, fetch_entries; slearn only for tables
+ * past context_tree.FETCH_SLOTS, as the benchmark's are): the anchor for slearn as it runs.
+ * Without, the plain loop.
  *
  * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm [-DPREFETCH]
  */

@@ -1,3 +1,3 @@
 """The pure S-learning core: symbols, token tables, views, the context tree, the mixer, the
 learning and online kernels, the predictors. Imports only numpy, numba, itself and
-``slearn.errors``."""
+``slearn.errors`` (and ``_jit`` numba's code generator llvmlite, for one intrinsic)."""
