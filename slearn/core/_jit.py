@@ -72,7 +72,7 @@ def prefetch(typingctx, array, index):
     (LLVM's ``llvm.prefetch``; no effect on any result, no bounds check needed: a prefetch
     never faults). Learning a library of 650,000 patterns spent most of its time waiting for
     one hash slot after another; fetching the slots of a step's contexts first made it
-    1.2x faster (``bench_learn.py``)."""
+    1.2x faster (``bench_learn.py``). llvmlite is numba's own, in the version numba pins."""
     if not isinstance(array, types.Array) or not isinstance(index, types.Integer):
         return None
 
@@ -81,8 +81,8 @@ def prefetch(typingctx, array, index):
         data = context.make_array(array_type)(context, builder, args[0])
         at = cgutils.get_item_pointer(context, builder, array_type, data, [args[1]], wraparound=False)
         i32 = ir.IntType(32)
-        declared = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(ir.VoidType(), [cgutils.voidptr_t, i32, i32, i32]), "llvm.prefetch.p0")
+        declared = builder.module.declare_intrinsic(  # named as this LLVM names it (p0i8 or p0)
+            "llvm.prefetch", [cgutils.voidptr_t], ir.FunctionType(ir.VoidType(), [cgutils.voidptr_t, i32, i32, i32]))
         read, keep_in_all_levels, data_cache = (ir.Constant(i32, x) for x in (0, 3, 1))
         builder.call(declared, [builder.bitcast(at, cgutils.voidptr_t), read, keep_in_all_levels, data_cache])
         return context.get_dummy_value()
