@@ -41,6 +41,19 @@ def test_the_c_rule_builds_the_pointer_library_byte_for_byte(c_learns, config):
         assert library.mixer.epoch[0] >= 1
 
 
+def test_a_library_past_the_caches_is_learned_with_prefetches_to_the_same_bytes(c_learns):
+    """slearn prefetches only tables past ``FETCH_SLOTS``: on a stream that grows them past
+    it (the streams above stay below), the library is still the plain C loop's."""
+    from slearn.core.context_tree import FETCH_SLOTS
+
+    episode = simulate(PointerConfig("error", trials=60_000, seed=5)).to_episode()
+    row = bench_learn.measure("error", episode, pointer_vocabulary(), c_learns, repeat=1)
+    assert row["differences"] == [] and row["patterns"] > FETCH_SLOTS // 2
+    library = bench_learn.PatternLibrary(vocabulary=pointer_vocabulary())
+    library.learn(episode)
+    assert min(len(library.tree.node_slots), len(library.tree.entry_slots)) > FETCH_SLOTS
+
+
 def test_the_c_rule_builds_the_arm_library_byte_for_byte(c_learns):
     episode = simulate_arm(ArmConfig(3, 2000, 0, "all")).to_episode()
     row = bench_learn.measure("arm", episode, arm_vocabulary(3), c_learns, repeat=1)
