@@ -42,7 +42,7 @@ def run_literal(library, codes: StepCodes, learn: bool, record: bool, top_k: int
         if not learn:
             args[6] = frozen_state
         done = _online_run(*args, tokens, learn, record, report_at, out.predicted, out.length,
-                           out.score, out.truth_p, out.top, out.context)
+                           out.score, out.truth_p, out.top, out.top_p, out.context)
         if done:
             break
         library.make_room()
@@ -70,13 +70,14 @@ def collect(index, tokens, obs_pos, action, max_length, cand):
 
 
 @helper
-def rank(index, node, outcome, top_tok, top_entry):
-    """The top-k outcomes of the chosen context: ``outcome`` first, then by rank
-    (``top_entry`` is scratch of the same length)."""
+def rank(index, node, outcome, top_tok, top_p, top_entry):
+    """The top-k outcomes of the chosen context and their shares in it: ``outcome``
+    first, then by rank (``top_entry`` is scratch of the same length)."""
     head, nxt, outs = index.head, index.next, index.outcome
     weight, last_seen = index.weight, index.last_seen
     k = len(top_tok)
     top_tok[:] = -1
+    top_p[:] = 0.0
     top_tok[0] = outcome
     filled = 1
     e = head[node]
@@ -92,12 +93,15 @@ def rank(index, node, outcome, top_tok, top_entry):
                 top_tok[pos], top_entry[pos] = o, e
                 filled = min(filled + 1, k)
         e = nxt[e]
+    total = index.total[node]
+    for i in range(filled):
+        top_p[i] = (index.weight[index.best[node]] if i == 0 else weight[top_entry[i]]) / total
 
 
 @kernel
 def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clock, max_len,
                 max_patterns, buf, tokens, learn, record, report_at, predicted, length, score,
-                truth_p, top, context):
+                truth_p, top, top_p, context):
     n_steps = (len(tokens) - 1) // 2
     step = state[2]
     cand = np.zeros(2 * max_len, np.int32)
@@ -118,7 +122,7 @@ def _online_run(trie, count, last_seen, index, use_index, n_patterns, state, clo
                 score[r] = index.weight[b] / index.total[node]
                 e = find_entry(index, node, truth)
                 truth_p[r] = 0.0 if e == -1 else index.weight[e] / index.total[node]
-                rank(index, node, predicted[r], top[r], top_entry)
+                rank(index, node, predicted[r], top[r], top_p[r], top_entry)
         if learn:
             learn_step(trie, count, last_seen, index, True, n_patterns, state, action, truth,
                        clock[0], max_len, buf)

@@ -49,8 +49,9 @@ class Reports(NamedTuple):
     ``predicted`` is the predicted observation token (-1: abstained, or no context yet),
     ``length`` the chosen context's length in tokens (-1), ``kind`` the expert kind,
     ``score`` the chosen context's share behind the prediction, ``truth_p`` its share
-    behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the share
-    of each in the context that ranked it, ``context`` whether the view had any history
+    behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the
+    probability of each (``record_prediction``: PPM's method C from the chosen context
+    down; they sum to at most 1), ``context`` whether the view had any history
     at all (the first observation of an episode has none). With ``Run.baselines``, the
     same walk also records what three simple rules would say: ``markov`` (a
     variable-order Markov model: the most frequent outcome of the longest context seen),
@@ -250,7 +251,14 @@ def hold_silent(recent, filled, held, view, r0, r1, empty_observation):
 def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count, fresh, last_seen,
                       outcome, nodes, m, ranked):
     """Store the prediction of report ``r``: the outcome, its share, and the ranking.
-    ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
+
+    The ranking is the predicted outcome, then the other outcomes of the chosen context
+    and of shorter contexts (longer ones when those leave room), each with its
+    probability by PPM's method C: a context of total weight ``n`` and ``d`` distinct
+    outcomes gives an outcome of weight ``w`` the mass left to it times ``w / (n + d)``
+    and passes ``d / (n + d)`` of that mass on to outcomes it never saw (the mass starts
+    at 1, so the probabilities sum to at most 1). After the prediction, outcomes are
+    ordered by probability. ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
     weight = fresh if kind == FRESH else count
     total = node_total(first, nxt, weight, node)
     out.predicted[r] = said
@@ -260,17 +268,27 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
     out.truth_p[r] = _share(first, nxt, weight, outcome, node, truth, total)
     top, top_p = out.top, out.top_p
     top[r, 0] = said
-    top_p[r, 0] = out.score[r]
+    top_p[r, 0] = _share(first, nxt, weight, outcome, node, said, total + _distinct(first, nxt, weight, node))
     filled = 1
+    mass = 1.0
     for k in range(length, 0, -1):  # the chosen context's ranking, then shorter contexts'
         if filled >= top.shape[1]:
             break
         w = fresh if (kind == FRESH and k == length) else count
-        filled = _rank_into(top, top_p, r, filled, first, nodes[k], nxt, w, last_seen, outcome, ranked)
+        filled, mass = _rank_into(top, top_p, r, filled, mass, first, nodes[k], nxt, w, last_seen, outcome,
+                                  ranked)
     for k in range(length + 1, m + 1):
         if filled >= top.shape[1]:
             break
-        filled = _rank_into(top, top_p, r, filled, first, nodes[k], nxt, count, last_seen, outcome, ranked)
+        filled, mass = _rank_into(top, top_p, r, filled, mass, first, nodes[k], nxt, count, last_seen,
+                                  outcome, ranked)
+    for i in range(2, filled):  # by probability after the prediction (stable: ties keep their rank)
+        t, p = top[r, i], top_p[r, i]
+        j = i
+        while j > 1 and top_p[r, j - 1] < p:
+            top[r, j], top_p[r, j] = top[r, j - 1], top_p[r, j - 1]
+            j -= 1
+        top[r, j], top_p[r, j] = t, p
 
 
 @helper
@@ -295,13 +313,32 @@ def _share(first, nxt, weight, outcome, node, token, total):
 
 
 @helper
-def _rank_into(top, top_p, r, filled, first, node, nxt, weight, last_seen, outcome, ranked):
+def _distinct(first, nxt, weight, node):
+    """How many of a node's outcomes have weight (count or fresh)."""
+    d = 0
+    e = first[node]
+    while e != -1:
+        if weight[e] > 0:
+            d += 1
+        e = nxt[e]
+    return d
+
+
+@helper
+def _rank_into(top, top_p, r, filled, mass, first, node, nxt, weight, last_seen, outcome, ranked):
     """Append ``node``'s outcomes to row ``r`` of ``top`` in rank order, skipping those
-    already there. ``ranked[i]`` remembers the entry placed at ``top[r, i]`` (from ``filled``
-    on), so placing an entry compares it with entries, not outcomes: O(outcomes x top_k)."""
+    already there, each with ``mass`` times its weight over the node's total plus its
+    distinct outcomes (PPM's method C, see ``record_prediction``); return the entries
+    filled and the mass the node passes on. ``ranked[i]`` remembers the entry placed at
+    ``top[r, i]`` (from ``filled`` on), so placing an entry compares it with entries, not
+    outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
-    total = -1  # summed when a share is first needed: most nodes add nothing new
+    total = node_total(first, nxt, weight, node)
+    if total <= 0:
+        return filled, mass
+    distinct = _distinct(first, nxt, weight, node)
+    scale = mass / (total + distinct)
     e = first[node]
     while e != -1:
         o = outcome[e]
@@ -311,8 +348,6 @@ def _rank_into(top, top_p, r, filled, first, node, nxt, weight, last_seen, outco
                 taken = True
                 break
         if not taken and weight[e] > 0:
-            if total < 0:
-                total = node_total(first, nxt, weight, node)
             pos = filled
             while pos > start and ranks_above(weight, last_seen, outcome, e, ranked[pos - 1]):
                 pos -= 1
@@ -322,8 +357,8 @@ def _rank_into(top, top_p, r, filled, first, node, nxt, weight, last_seen, outco
                     top_p[r, i] = top_p[r, i - 1]
                     ranked[i] = ranked[i - 1]
                 top[r, pos] = o
-                top_p[r, pos] = weight[e] / total
+                top_p[r, pos] = weight[e] * scale
                 ranked[pos] = e
                 filled = min(filled + 1, k)
         e = nxt[e]
-    return filled
+    return filled, mass * distinct / (total + distinct)
