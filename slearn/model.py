@@ -17,15 +17,17 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import Any, Hashable, Iterable, Mapping, Sequence
+from contextlib import contextmanager
+from typing import Any, Hashable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary, check_parameters, check_scopes
 from slearn.core.literal import LiteralLibrary
+from slearn.core.online import REPORT_KINDS
 from slearn.core.predictor import Predictor, check_top_k
 from slearn.core.stream import Episode
-from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
+from slearn.core.vocabulary import ACTION, OBSERVATION, STORABLE, Vocabulary, storable
 from slearn.errors import DataWarning, ParameterError
 
 ITEM = "item"
@@ -34,6 +36,7 @@ _ROWS_KEPT = 1 << 16   # steps a model remembers the symbols of (symbols never c
 _PREDICTORS_KEPT = 4    # predictors a model keeps, one per k asked (each remembers answers;
 #                         a predictor follows the library as it learns)
 SCORINGS = ("adaptive", "literal")
+_HOLD = REPORT_KINDS.index("hold")
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
 
@@ -76,15 +79,22 @@ class SequenceModel:
         self._ranked_of: dict = {}    # id(prediction) -> (prediction, k, rankings), see _named_of
         self._rows_of: dict = {}      # a step's (actions, observations) items -> its symbols,
         self._rows_for: Vocabulary | None = None  # in this vocabulary
+        self._unstorable_said = False  # whether learning warned of a value files cannot store
+        self._ranks_for: tuple = (None, 0, {})  # (vocabulary, channels, channel -> its rank)
 
     # --- the sequence form --------------------------------------------------------------
     def learn(self, sequence: Iterable[Hashable]) -> None:
-        """Learn one sequence of hashable items (one episode)."""
+        """Learn one sequence of hashable items (one episode). A call that raises leaves
+        the model as it was."""
+        self._use("sequence", learning=False)
+        items = list(_iterable(sequence, "a sequence of items"))
+        if not items:
+            return
+        with self._registering():
+            self.vocabulary.add_channel(ITEM, OBSERVATION)
+            symbols = [self._symbol(ITEM, item, learn=True) for item in items]
         self._use("sequence")
-        self.vocabulary.add_channel(ITEM, OBSERVATION)
-        symbols = [self._symbol(ITEM, item, learn=True) for item in _iterable(sequence, "a sequence of items")]
-        if symbols:
-            self._learn(Episode.from_steps([((), (s,)) for s in symbols]))
+        self._learn(Episode.from_steps([((), (s,)) for s in symbols]))
 
     def predict(self, history: Sequence[Hashable]) -> Hashable | None:
         """The most likely next item after ``history``, or ``None``."""
@@ -109,7 +119,10 @@ class SequenceModel:
         return ranked[0][0] if ranked else None
 
     def rank(self, history: Sequence[Hashable], k: int = 3) -> list[tuple[Hashable, float]]:
-        """Up to ``k`` next items, best first, each with the share of its context behind it."""
+        """Up to ``k`` next items with their probabilities: the prediction first (what
+        :meth:`predict` says), then the others by probability (PPM's method C from the
+        prediction's context down to shorter ones; they sum to at most 1). A ``recent``
+        expert's prediction can carry less probability than the item after it."""
         self._use("sequence", learning=False)
         check_top_k(k, "k")
         tail = self._tail(history)
@@ -160,11 +173,12 @@ class SequenceModel:
         if view is None:
             return [None] * len(ends)
         # What _named reads from predictor.prediction(batch, i), without building it: the
-        # first ranked outcome of a view that did not abstain, if it is one item.
+        # first ranked outcome of a view that did not abstain (nor hold), if it is one item.
         out: list[Hashable | None] = []
         item_of: dict[int, Hashable | None] = {}
-        for token, top in zip(batch.token[:, view].tolist(), batch.top[:, view, 0].tolist()):
-            if token < 0 or top < 0:
+        for token, top, kind in zip(batch.token[:, view].tolist(), batch.top[:, view, 0].tolist(),
+                                    batch.kind[:, view].tolist()):
+            if token < 0 or top < 0 or kind == _HOLD:
                 out.append(None)
                 continue
             if top not in item_of:
@@ -175,9 +189,16 @@ class SequenceModel:
 
     # --- the step form ------------------------------------------------------------------
     def learn_steps(self, steps: Iterable[Step]) -> None:
-        """Learn one episode of ``(actions, observations)`` steps (mappings channel -> value)."""
+        """Learn one episode of ``(actions, observations)`` steps (mappings channel -> value;
+        the order of a mapping's keys does not matter). A call that raises leaves the model
+        as it was."""
+        self._use("steps", learning=False)
+        steps = list(_iterable(steps, "steps"))
+        if not steps:
+            return
+        with self._registering():
+            rows = [self._step_symbols(step, learn=True) for step in steps]
         self._use("steps")
-        rows = [self._step_symbols(step, learn=True) for step in _iterable(steps, "steps")]
         if rows:
             self._learn(Episode.from_steps(rows))
             if self._scopes and self.library is not None and self.library.clock == len(rows):
@@ -202,7 +223,8 @@ class SequenceModel:
 
     def rank_step(self, history: Sequence[Step], actions: Mapping[str, Hashable],
                   k: int = 3) -> dict[str, list[tuple[Hashable, float]]]:
-        """Per observation channel, up to ``k`` next values with their shares, best first."""
+        """Per observation channel, up to ``k`` next values with their probabilities, the
+        prediction first (as :meth:`rank`)."""
         self._use("steps", learning=False)
         check_top_k(k, "k")
         if not isinstance(actions, Mapping):
@@ -234,6 +256,7 @@ class SequenceModel:
                 acts, obs = known(step[0], ACTION), known(step[1], OBSERVATION)
                 if acts is None or obs is None:
                     return None
+                acts, obs = self._symbols_in_channel_order(acts), self._symbols_in_channel_order(obs)
                 if len(row_of) >= _ROWS_KEPT:
                     self._rows_of = row_of = {}
                 row = row_of[key] = (acts, obs)
@@ -241,6 +264,7 @@ class SequenceModel:
         acts = known(actions, ACTION) if type(actions) is dict else None
         if acts is None:
             return None
+        acts = self._symbols_in_channel_order(acts)
         return self._named_of(self._predictor_for(k).predict(rows, acts), k)
 
     # --- files --------------------------------------------------------------------------
@@ -248,6 +272,7 @@ class SequenceModel:
         """Write the model as a library file (Parquet), atomically."""
         from slearn.io.library_file import save_library
 
+        path = _path(path)
         if self.library is None:
             raise ParameterError("the model has learned nothing yet: nothing to save")
         if not overwrite and os.path.lexists(path):
@@ -260,7 +285,7 @@ class SequenceModel:
         """A model saved by :meth:`save` (or any library file learned from logs)."""
         from slearn.io.library_file import load_library
 
-        loaded = load_library(path)
+        loaded = load_library(_path(path))
         model = cls(loaded.library.max_length, loaded.params.get("scoring", "adaptive"),
                     loaded.library.max_patterns)
         model.vocabulary, model.library = loaded.vocabulary, loaded.library
@@ -274,6 +299,27 @@ class SequenceModel:
             self._form = form
         if self._form is not None and self._form != form:
             raise ParameterError(f"this model learned {self._form}; use the matching methods")
+
+    @contextmanager
+    def _registering(self) -> Iterator[None]:
+        """Symbols registered inside are forgotten again when it raises (a learning call
+        that fails part-way leaves the vocabulary as it was); after it, one warning when a
+        value is new that a library file cannot store."""
+        vocabulary = self.vocabulary
+        symbols, channels = len(vocabulary), len(vocabulary.roles)
+        try:
+            yield
+        except BaseException:
+            vocabulary.truncate(symbols, channels)
+            raise
+        if not self._unstorable_said:
+            for channel, value in vocabulary.names(symbols):
+                if not storable(value):
+                    self._unstorable_said = True
+                    warnings.warn(f"{channel} value {value!r} ({type(value).__name__}) cannot be saved in a "
+                                  f"library file, which stores {STORABLE}: map the values to these to save "
+                                  f"the model", DataWarning, stacklevel=4)
+                    break
 
     def _new_library(self) -> PatternLibrary | LiteralLibrary:
         max_length, max_patterns = self._params
@@ -303,8 +349,34 @@ class SequenceModel:
         for role, mapping in _roles(step):
             for channel in mapping:
                 self.vocabulary.add_channel(str(channel), role) if learn else None
-            out.append(tuple(self._symbol(str(c), v, learn) for c, v in mapping.items()))
+            out.append(tuple(self._symbol(c, v, learn) for c, v in self._in_channel_order(mapping)))
         return out[0], out[1]
+
+    def _in_channel_order(self, mapping: Mapping) -> list[tuple[str, Hashable]]:
+        """A step mapping's ``(channel, value)`` pairs in the order the channels were first
+        declared (as a spec orders the channels of a log's steps), whatever the order of its
+        keys: a step's actions are one token, so equal mappings must give equal tuples."""
+        pairs = [(str(c), v) for c, v in mapping.items()]
+        if len(pairs) > 1:
+            rank = self._channel_ranks()
+            pairs.sort(key=lambda pair: rank.get(pair[0], len(rank)))
+        return pairs
+
+    def _symbols_in_channel_order(self, symbols: tuple[int, ...]) -> tuple[int, ...]:
+        """Known symbols of one step's mapping, ordered as :meth:`_in_channel_order` orders them."""
+        if len(symbols) < 2:
+            return symbols
+        rank, name = self._channel_ranks(), self.vocabulary.name
+        return tuple(sorted(symbols, key=lambda s: rank[name(s)[0]]))
+
+    def _channel_ranks(self) -> dict[str, int]:
+        """Channel -> its place in the vocabulary's declaration order."""
+        vocabulary = self.vocabulary
+        known, n, rank = self._ranks_for
+        if known is not vocabulary or n != len(vocabulary.roles):
+            rank = {c: i for i, c in enumerate(vocabulary.roles)}
+            self._ranks_for = (vocabulary, len(rank), rank)
+        return rank
 
     def _known_steps(self, items: Sequence[Hashable]) -> list | None:
         """The items as the predictor's steps, ``((), (symbol,))`` each (the same tuples every
@@ -396,27 +468,52 @@ class SequenceModel:
             row = []
             for role, mapping in _roles(step):
                 symbols = []
-                for channel, value in mapping.items():
-                    if roles.get(str(channel)) != role:
-                        raise ParameterError(_unknown_channel(str(channel), role, roles))
-                    s = self._symbol(str(channel), value, learn=False)
+                for channel, value in self._in_channel_order(mapping):
+                    if roles.get(channel) != role:
+                        raise ParameterError(_unknown_channel(channel, role, roles))
+                    s = self._symbol(channel, value, learn=False)
                     if s == -1:
                         s = len(self.vocabulary) + len(unknown)
-                        unknown.append(view_of.get(str(channel), -1) if role == OBSERVATION else -1)
+                        unknown.append(view_of.get(channel, -1) if role == OBSERVATION else -1)
                     symbols.append(s)
                 row.append(tuple(symbols))
             rows.append((row[0], row[1]))
         return rows, np.asarray(unknown, np.int32)
 
     def _named(self, prediction, k: int) -> dict:
-        out = {}
+        """Per observation channel, ``[(value, probability), ...]`` (empty: it abstains). A
+        plain sequence has no held reading: a hold there is an abstention. A view of every
+        observation channel (the literal rule) ranks whole steps: each channel gets the
+        values of its ranked steps, the predicted one first, then by the probabilities of
+        the steps that have them, summed."""
+        out: dict[str, list] = {}
+        name = self.vocabulary.name
         for view in prediction.views:
-            ranked = []
-            for symbols, share in view.ranked[:k]:
-                if len(symbols) == 1:
-                    ranked.append((self.vocabulary.name(symbols[0])[1], share))
-            out[view.name if view.name != "*" else ITEM] = ranked
+            abstains = view.abstained or (view.kind == "hold" and self._form == "sequence")
+            ranked = () if abstains else view.ranked[:k]
+            if view.name != "*":
+                out[view.name] = [(name(symbols[0])[1], p) for symbols, p in ranked if len(symbols) == 1]
+                continue
+            channels = [ITEM] if self._form == "sequence" else \
+                [c for c, role in self.vocabulary.roles.items() if role == OBSERVATION]
+            shares: dict[str, dict] = {channel: {} for channel in channels}
+            for symbols, p in ranked:
+                for symbol in symbols:
+                    channel, value = name(symbol)
+                    values = shares.setdefault(channel, {})
+                    values[value] = values.get(value, 0.0) + p
+            for channel, values in shares.items():
+                said = [name(s)[1] for s in (ranked[0][0] if ranked else ()) if name(s)[0] == channel]
+                order = sorted(values, key=lambda value: (value not in said, -values[value]))
+                out[channel] = [(value, values[value]) for value in order[:k]]
         return out
+
+
+def _path(path) -> str | os.PathLike:
+    """``path`` if it names a file (``str`` or ``os.PathLike`` of text), or a one-line error."""
+    if isinstance(path, str) or (isinstance(path, os.PathLike) and isinstance(os.fspath(path), str)):
+        return path
+    raise ParameterError(f"a model's path must be a str or an os.PathLike, not {type(path).__name__}")
 
 
 def _iterable(value, what: str):

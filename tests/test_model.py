@@ -280,3 +280,99 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
             call()
     assert steps.predict_step([({}, {"pos": 2})], {"cmd": "R"}) == {"pos": 1}
     assert steps.predict_step([({}, {"pos": 99})], {"cmd": "L"}) == {"pos": 2}  # a value never seen is no error
+
+
+def test_the_order_of_a_steps_keys_does_not_matter():
+    import random
+    rng = random.Random(0)
+    pairs = [(rng.randint(0, 1), rng.randint(0, 1)) for _ in range(200)]
+    ordered, shuffled = SequenceModel(), SequenceModel()
+    ordered.learn_steps([({"a": a, "b": b}, {"pos": a + 2 * b, "lit": a}) for a, b in pairs])
+    shuffled.learn_steps([(({"a": a, "b": b} if i % 2 else {"b": b, "a": a}),
+                           ({"pos": a + 2 * b, "lit": a} if i % 3 else {"lit": a, "pos": a + 2 * b}))
+                          for i, (a, b) in enumerate(pairs)])
+    assert len(shuffled.library.tokens) == len(ordered.library.tokens)
+    history = [({}, {"pos": 0, "lit": 0})]
+    for a, b in [(0, 0), (0, 1), (1, 0), (1, 1)]:
+        answers = []
+        for model in (ordered, shuffled):
+            for actions in ({"a": a, "b": b}, {"b": b, "a": a}):
+                answers.append(model.predict_step(history, actions))
+                answers.append(model.predict_step([({}, {"lit": 0, "pos": 0})], actions))
+                answers.append(model.rank_step([({"b": 0, "a": 0}, {"lit": 0, "pos": 0})], actions, k=2))
+        assert answers[0] == {"pos": a + 2 * b, "lit": a}
+        assert all(x == answers[0] for x in answers[0::3]) and all(x == answers[1] for x in answers[1::3])
+        assert all(x == answers[2] for x in answers[2::3])
+
+
+def test_literal_steps_of_several_channels_are_predicted_per_channel():
+    model = SequenceModel(scoring="literal")
+    episode = [({"c": i % 2}, {"o": i % 3, "p": (i + 1) % 3}) for i in range(60)]
+    for _ in range(5):
+        model.learn_steps(episode)
+    history = episode[:5]
+    truth = {"o": 5 % 3, "p": 6 % 3}
+    assert model.predict_step(history, {"c": 1}) == truth
+    ranked = model.rank_step(history, {"c": 1}, k=2)
+    assert set(ranked) == {"o", "p"} and {c: r[0][0] for c, r in ranked.items()} == truth
+    assert all(0 < p <= 1 for r in ranked.values() for _, p in r)
+
+
+def test_an_item_that_only_ended_sequences_has_nothing_after_it():
+    model = SequenceModel()
+    model.learn("ab")
+    assert model.predict("b") is None and model.rank("b") == [] and model.predict_many(["b", "a"]) == [None, "b"]
+    steps = SequenceModel()  # a step's channel is sampled and held: it predicts its reading again
+    steps.learn_steps([({}, {"pos": 1}), ({}, {"pos": 2})])
+    assert steps.predict_step([({}, {"pos": 2})], {}) == {"pos": 2}
+
+
+def test_a_learn_call_that_raises_leaves_the_model_as_it_was(tmp_path):
+    a, b = SequenceModel(), SequenceModel()
+    a.learn("abab")
+    b.learn("abab")
+    with pytest.raises(ParameterError, match="not hashable"):
+        b.learn(["a", "q", "r", ["x"]])
+    with pytest.raises(ParameterError):
+        b.learn_steps([({}, {"item2": 1}), ({}, {"o": [1]})])
+    assert list(b.vocabulary.items()) == list(a.vocabulary.items()) and b.vocabulary.roles == a.vocabulary.roles
+    a.save(tmp_path / "a.parquet")
+    b.save(tmp_path / "b.parquet")
+    assert (tmp_path / "a.parquet").read_bytes() == (tmp_path / "b.parquet").read_bytes()
+    fresh = SequenceModel()
+    with pytest.raises(ParameterError):
+        fresh.learn([[1]])
+    fresh.learn([])
+    fresh.learn_steps([({}, {"o": 1}), ({}, {"o": 2})])  # neither fixed the form
+    assert fresh.predict_step([({}, {"o": 1})], {}) == {"o": 2}
+
+
+def test_values_a_file_stores_round_trip_and_others_are_refused_in_one_line(tmp_path):
+    import numpy as np
+
+    from slearn.errors import DataWarning
+    items = ["a", None, "a", None, (np.int64(1), None, "x"), 2.5, True, "a"]
+    model = SequenceModel()
+    model.learn(items)
+    model.save(tmp_path / "m.parquet")
+    again = SequenceModel.load(tmp_path / "m.parquet")
+    for history in (["a"], [None], [(1, None, "x")], [2.5], [True]):
+        assert again.rank(history) == model.rank(history)
+    for odd in (frozenset([1]), "\ud800", b"bytes", 1j):
+        kept = SequenceModel()
+        with pytest.warns(DataWarning, match="cannot be saved in a library file"):
+            kept.learn(["a", odd, "a", odd])
+        assert kept.predict(["a"]) == odd  # it works in memory
+        with pytest.raises(SlearnError, match=r"cannot store value .* map the values to these") as err:
+            kept.save(tmp_path / "odd.parquet")
+        assert "\n" not in str(err.value) and not (tmp_path / "odd.parquet").exists()
+
+
+@pytest.mark.parametrize("path", [None, 123, b"m.parquet"])
+def test_a_path_that_is_not_text_is_refused_in_one_line(path):
+    model = SequenceModel()
+    model.learn("abab")
+    with pytest.raises(ParameterError, match="path must be a str or an os.PathLike"):
+        model.save(path)
+    with pytest.raises(ParameterError, match="path must be a str or an os.PathLike"):
+        SequenceModel.load(path)

@@ -5,11 +5,31 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, Hashable, Iterable
 
+import numpy as np
+
 from slearn.errors import InputError
 
 ACTION = "action"
 OBSERVATION = "observation"
 ROLES = (ACTION, OBSERVATION)
+STORABLE = "text, numbers, booleans, None and tuples of them"
+"""What a library file can store as a value (:func:`storable`)."""
+
+
+def storable(value: Hashable) -> bool:
+    """Whether a library file can store ``value``: ``None``, a bool, a number (NumPy's
+    too), text that is valid Unicode, or a tuple of these."""
+    if value is None or isinstance(value, (bool, int, float, np.bool_, np.integer, np.floating)):
+        return True
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:  # (a lone surrogate)
+            return False
+        return True
+    if isinstance(value, tuple):
+        return all(storable(v) for v in value)
+    return False
 
 
 @dataclass
@@ -18,7 +38,9 @@ class Vocabulary:
 
     Symbols are handed out densely from 0 in order of first registration, so the
     same registration order always gives the same symbols. Each channel has a role,
-    ``"action"`` or ``"observation"``; values are kept as given (str, int, bool, ...).
+    ``"action"`` or ``"observation"``; values are kept as first given (str, int, bool,
+    ...). Values equal in Python are one value, as in a ``dict``: ``1``, ``1.0`` and
+    ``True`` of one channel share a symbol.
     """
 
     _names: list[tuple[str, Hashable]] = field(default_factory=list)
@@ -48,6 +70,16 @@ class Vocabulary:
         self._names.append(key)
         self._symbols[key] = found
         return found
+
+    def truncate(self, symbols: int, channels: int) -> None:
+        """Forget every symbol from ``symbols`` on and every channel declared after the
+        first ``channels`` (undoing a registration that failed part-way)."""
+        for key in self._names[symbols:]:
+            del self._symbols[key]
+        del self._names[symbols:]
+        for channel in list(self.roles)[channels:]:
+            del self.roles[channel]
+            self.value_labels.pop(channel, None)
 
     def get_symbol(self, channel: str, value: Hashable) -> int | None:
         """The symbol of ``(channel, value)`` or ``None`` when it was never registered."""

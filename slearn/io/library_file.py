@@ -57,7 +57,7 @@ from slearn.core.library import PatternLibrary, check_scopes
 from slearn.core.literal import LiteralLibrary
 from slearn.core.mixer import Mixer
 from slearn.core.tokens import TokenTable
-from slearn.core.vocabulary import Vocabulary
+from slearn.core.vocabulary import STORABLE, Vocabulary, storable
 from slearn.errors import InputError, LibraryFormatError, ParameterError
 from slearn.io.files import atomic_write, check_output, regular_file
 from slearn.io.library_header import FORMAT_NAME, FORMAT_VERSION, TABLES, parse_header
@@ -203,6 +203,8 @@ def _binned_channels(spec: Spec | None) -> set[str]:
 
 def _encode_value(channel: str, value: Hashable, binned: bool, path: Path) -> tuple:
     """``(value_type, value_int, value_float, value_text)`` of one vocabulary value."""
+    if value is None:
+        return "none", None, None, None
     if isinstance(value, (bool, np.bool_)):
         return "bool", int(value), None, None
     if isinstance(value, (int, np.integer)):
@@ -211,15 +213,20 @@ def _encode_value(channel: str, value: Hashable, binned: bool, path: Path) -> tu
         return (kind, int(value), None, None) if inside else (kind, None, None, str(int(value)))
     if isinstance(value, (float, np.floating)):
         return "float", None, float(value), None
-    if isinstance(value, str):
+    if isinstance(value, str) and storable(value):
         return "str", None, None, value
-    if isinstance(value, tuple):
-        try:
-            return "tuple", None, None, json.dumps(value, separators=(",", ":"))
-        except TypeError:
-            pass
+    if isinstance(value, tuple) and storable(value):
+        return "tuple", None, None, json.dumps(value, separators=(",", ":"), default=_plain_scalar)
     raise InputError(f"{path}: cannot store value {value!r} of channel {channel!r} "
-                     f"({type(value).__name__}): use a spec that makes it a string or a number")
+                     f"({type(value).__name__}): a library stores {STORABLE}; map the values "
+                     f"to these before learning (in a spec: bins or a field that is text or a number)")
+
+
+def _plain_scalar(value: Any) -> Any:
+    """A NumPy scalar inside a tuple as the Python number JSON writes (equal, with the same hash)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not stored")
 
 
 def _vocabulary_table(vocabulary: Vocabulary, spec: Spec | None, path: Path) -> pa.Table:
@@ -424,6 +431,8 @@ def _decode_value(kind: str, number: int | None, real: float | None, text: str |
         raise ValueError(f"a {kind} value has neither a number nor a text")
     if kind in ("int", "bin"):
         return number if number is not None else int(cast(str, text))
+    if kind == "none":
+        return None
     if kind == "bool":
         return bool(number)
     if kind == "float":
