@@ -58,7 +58,9 @@ class ViewPrediction:
         kind: which expert spoke (``frequent``, ``recent``, ``fresh``), or ``hold`` when no
             context of the present was ever seen and a spec's channel holds its last reading
             (no share); ``""`` abstaining.
-        ranked: ``(observations, share)`` best first.
+        ranked: ``(observations, probability)``: the prediction first, then the others by
+            probability (PPM's method C from the chosen context down, see
+            ``online.record_prediction``; they sum to at most 1).
     """
 
     view: int
@@ -97,7 +99,8 @@ class BatchPrediction(NamedTuple):
 
     ``token`` is the predicted observation token (-1: abstained), ``score``, ``length`` and
     ``kind`` as in :class:`ViewPrediction` (``kind`` indexes ``slearn.core.online.REPORT_KINDS``, -1),
-    ``top``/``top_p`` the ranked tokens (-1 padded) and their shares. A token's symbols are
+    ``top``/``top_p`` the ranked tokens (-1 padded) and their probabilities (as
+    :attr:`ViewPrediction.ranked`). A token's symbols are
     ``library.tokens.symbols(token)``; :meth:`Predictor.prediction` gives one query as a
     :class:`Prediction`.
     """
