@@ -340,3 +340,18 @@ def test_a_rebuilt_entry_table_is_the_one_learning_built():
     hashtable.rebuild(slots, tree.owner, tree.outcome, 0, m)
     assert np.array_equal(slots, tree.entry_slots) and m > hashtable.AHEAD * 100
 
+
+
+def test_experts_that_always_agreed_leave_the_prediction_to_the_all_time_counts():
+    # A 400 times, then B, then C: a context's latest outcome (A -> B, once) and its most
+    # frequent (A -> A, 399 times) never disagreed where it mattered, so their weights tie;
+    # the counts speak, and a held-out run of A's is predicted (it was 0 % when ties went
+    # to the latest outcome)
+    library = PatternLibrary()
+    stream = [0] * 400 + [1] * 400 + [2] * 400
+    library.learn(Episode.from_steps([((), (s,)) for s in stream]))
+    held_out = Episode.from_steps([((), (0,))] * 50)
+    codes = library.encode(held_out, intern=False)
+    out = library.run(codes, learn=False, record=True)
+    said = out.predicted[out.context]
+    assert len(said) == 49 and (said == codes.token[out.context]).all()

@@ -26,12 +26,17 @@ nearly certain weighs much, a miss where it is a coin toss little. It raises an 
 ``ln(1 / FALSE_ALARM)`` (the false-alarm rate per prediction is at most ``FALSE_ALARM``
 when the shares are calibrated). An alarm opens a new epoch:
 fresh counts restart from zero (:mod:`slearn.core.context_tree`), and the ``FRESH`` experts
-start from the weights of the frequency experts of the same length, so they speak as
-soon as they are as good. A false alarm costs little, because the all-time experts keep
-their weights.
+start just below the weights of the frequency experts of the same length (or keep their
+own, if higher), so they speak once they are better: after the first prediction where
+the all-time counts are wrong and the fresh ones right. A false alarm costs little,
+because the all-time experts keep their weights and keep speaking.
 
-Ties go to ``FRESH``, then ``RECENT``, then shorter contexts: with no evidence yet, the
-latest and simplest explanation speaks. No constant is tuned to a data set:
+Ties go to ``FREQUENT``, then ``RECENT``, then ``FRESH``, then shorter contexts: experts
+that never disagreed where it mattered leave the prediction to the all-time counts (a
+context's latest outcome that followed it once must not outvote hundreds before it: a
+stream that drifted A, B, C predicted a held-out run of A's as B's while ties went to
+``RECENT``), and with no evidence yet the simplest explanation speaks. No constant is
+tuned to a data set:
 ``ETA`` is Hedge's rate for tens of experts over ~10^4 predictions, ``SPREAD`` bounds the
 catch-up to ``SPREAD / ETA`` net mistakes, and ``FALSE_ALARM`` is a rate; the measured
 tables in ``bench/`` are flat over a factor of two in each.
@@ -54,7 +59,8 @@ FALSE_ALARM = 1e-6
 _THRESHOLD = float(np.log(1.0 / FALSE_ALARM))
 _BETA = float(np.exp(-ETA))
 _FLOOR = float(np.exp(-SPREAD))
-_TIE = np.array([1.0, 1.0 + 2e-9, 1.0 + 4e-9])  # prior weight per kind: FRESH, then RECENT, win ties
+_TIE = np.array([1.0, 1.0 - 2e-9, 1.0 - 4e-9])  # prior weight per kind: FREQUENT, then RECENT, win ties
+_BELOW = float(_TIE[FRESH] / _TIE[FREQUENT])  # a FRESH expert's start after an alarm, relative to its twin
 ASLEEP = 0.0  # the weight of FRESH experts before the first epoch
 CUSUM, MISSES, TRIALS = 0, 1, 2
 
@@ -206,5 +212,6 @@ def detect(w, det, v, hit, p_hit):
     det[v, MISSES] = 0.0
     det[v, TRIALS] = 0.0
     for k in range(w.shape[1]):
-        w[v, k, FRESH] = max(w[v, k, FREQUENT], w[v, k, FRESH]) * (_TIE[FRESH] / _TIE[FREQUENT])
+        if w[v, k, FRESH] <= w[v, k, FREQUENT]:
+            w[v, k, FRESH] = w[v, k, FREQUENT] * _BELOW
     return True
