@@ -245,10 +245,24 @@ def test_a_channel_with_more_values_than_its_limit_is_refused(tmp_path):
 
 def test_nan_readings_of_a_categorical_channel_are_not_symbols(tmp_path):
     path = tmp_path / "nan.mcap"
-    path.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, b'{"v": NaN}') for i in range(50)))))
+    payloads = [b'{"v": NaN}' if i % 2 else b'{"v": %d}' % (i % 4) for i in range(50)]
+    path.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, p) for i, p in enumerate(payloads)))))
     result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet", "--channel", "/a:v:observation")
     assert result.exit_code == 0, result.output
-    assert len(load_library(tmp_path / "lib.parquet").vocabulary) == 0
+    assert [v for _, _, v in load_library(tmp_path / "lib.parquet").vocabulary.items()] == [0, 2]
+
+
+def test_a_spec_whose_values_give_no_event_writes_nothing(tmp_path):
+    # every reading NaN, or text under bins: an empty library would hide the spec's mistake
+    nan, text = tmp_path / "nan.mcap", tmp_path / "text.mcap"
+    nan.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, b'{"v": NaN}') for i in range(50)))))
+    text.write_bytes(mb.log(mb.chunk(b"".join(mb.message(i, b'{"v": "up"}') for i in range(50)))))
+    for path, channel in ((nan, "/a:v:observation"), (text, "/a:v:observation:range=[0,1],count=4")):
+        result = run("learn", "-q", path, "-o", tmp_path / "lib.parquet", "--channel", channel)
+        assert result.exit_code == 1, result.output
+        assert f"{path}: no event to learn, so nothing was written: the spec's channels (/a:v) gave no value" \
+            in result.stderr.strip().splitlines()[-1]
+        assert not (tmp_path / "lib.parquet").exists()
 
 
 def test_info_on_a_fifo_does_not_hang(tmp_path):
@@ -301,3 +315,16 @@ def test_a_log_time_past_int64_is_damage_not_a_traceback(tmp_path):
     assert "past the year 2262" in result.stderr
     assert load_library(tmp_path / "lib.parquet").library.clock == 5
 
+
+
+def test_bounds_past_any_log_time_are_the_end_of_time(tmp_path):
+    path = write_log(tmp_path / "x.mcap", [("/a", i, {"v": i % 3}) for i in range(20)])
+    whole = run("learn", "-q", path, "-o", tmp_path / "a.parquet", "--channel", "/a:v:observation")
+    ended = run("learn", "-q", path, "-o", tmp_path / "b.parquet", "--channel", "/a:v:observation",
+                "--end", "1e300")  # was OverflowError
+    assert whole.exit_code == ended.exit_code == 0, ended.output
+    assert len(load_library(tmp_path / "a.parquet").library) == len(load_library(tmp_path / "b.parquet").library)
+    late = run("learn", "-q", path, "-o", tmp_path / "c.parquet", "--channel", "/a:v:observation",
+               "--start", "1e300")
+    assert late.exit_code == 1
+    assert "1e300 to end of each log leaves no time of this log" in late.stderr.splitlines()[-1]

@@ -143,15 +143,26 @@ def test_bad_inputs_are_one_line_errors(files, args, message):
     assert result.stderr.count("\n") == 1 and result.stdout == ""
 
 
-def test_a_log_with_nothing_salvaged_has_no_accuracy_and_misses_any_threshold(files, tmp_path):
+def test_a_log_with_nothing_salvaged_is_an_error_and_writes_nothing(files, tmp_path):
+    # as for every command (README): exit 1, one line, no output; some salvaged: exit 3
     stub = tmp_path / "stub.mcap"
     stub.write_bytes(files["test"].read_bytes()[:300])
-    result = run(files["library"], stub, "--json", "--quiet")
-    assert result.exit_code == EXIT_TRUNCATED
-    assert json.loads(result.stdout)["totals"]["accuracy"] is None
-    gated = run(files["library"], stub, "--fail-under", "1", "--quiet")
-    assert gated.exit_code == EXIT_BELOW_THRESHOLD
-    assert "no observation event to predict" in gated.stderr
+    for extra in ([], ["--json"], ["--fail-under", "1"]):
+        result = run(files["library"], stub, "--quiet", "--report", tmp_path / "r.html", *extra)
+        assert result.exit_code == 1, result.output
+        assert f"slearn: error: nothing could be salvaged from {stub}, so nothing was scored or written" \
+            in result.stderr.splitlines()
+        assert result.stdout == "" and not (tmp_path / "r.html").exists()
+    both = run(files["library"], stub, files["test"], "--json", "--quiet")
+    assert both.exit_code == EXIT_TRUNCATED and json.loads(both.stdout)["totals"]["accuracy"] is not None
+
+
+def test_two_outputs_on_one_file_are_refused_before_replaying(files, tmp_path):
+    for a, b in (("--plot", "--report"), ("--report", "--write-mcap")):
+        result = run(files["library"], files["test"], a, tmp_path / "x.out", b, tmp_path / "x.out", "--quiet")
+        assert result.exit_code == 1
+        assert f"both write {tmp_path / 'x.out'}: give each output its own path" in result.stderr
+        assert not (tmp_path / "x.out").exists()
 
 
 def test_a_slice_overlap_is_known_when_the_bounds_decide_it():

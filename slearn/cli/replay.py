@@ -41,6 +41,17 @@ def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
             check_output(path, force, inputs)
 
 
+def _check_distinct(outputs: list[tuple[str, str | None]]) -> None:
+    """Refuse two outputs on one file (one would overwrite the other), before replaying."""
+    seen: dict[str, str] = {}
+    for option, path in outputs:
+        if path:
+            key = os.path.realpath(path)
+            if key in seen:
+                raise InputError(f"{seen[key]} and {option} both write {path}: give each output its own path")
+            seen[key] = option
+
+
 @click.command("replay")
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
@@ -88,20 +99,24 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
 
     library, logs = _split(paths, spec)
     inputs = [*paths, *baseline_train, *([spec] if spec else [])]
-    _check_outputs([plot, report], force, inputs)
+    outputs = [("--plot", plot), ("--report", report)]
     if write_mcap:
         from slearn.replay.annotate import annotated_paths, layout_path
 
-        targets = annotated_paths(logs, write_mcap)
-        _check_outputs([str(p) for t in targets for p in (t, layout_path(t))], force, inputs)
+        outputs += [("--write-mcap", str(p)) for t in annotated_paths(logs, write_mcap) for p in (t, layout_path(t))]
+    _check_outputs([path for _, path in outputs], force, inputs)
+    _check_distinct(outputs)
     with reader_for(workers, ray_address, None if quiet else "read") as reader:
         evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics),
                                  online=online, top_k=top_k, window=window, max_length=max_length,
                                  baseline_logs=baseline_train or None,
                                  keep_outcomes=write_mcap is not None, progress=not quiet,
                                  time_slice=make_slice(start, end, split, HELDOUT), reader=reader)
-    outputs = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
-    _render(evaluation, outputs, as_json)
+    if evaluation.truncated and not any(e.steps for e in evaluation.episodes):
+        damaged = ", ".join(e.name for e in evaluation.episodes if e.truncated)
+        raise InputError(f"nothing could be salvaged from {damaged}, so nothing was scored or written")
+    written = _write_outputs(evaluation, plot, report, write_mcap, force, quiet, inputs)
+    _render(evaluation, written, as_json)
     for warning in evaluation.warnings:
         click.echo(f"slearn: warning: {warning}", err=True)
     accuracy = evaluation.accuracy

@@ -20,6 +20,7 @@ from slearn.errors import InputError
 
 TRAIN, HELDOUT = "train", "heldout"
 _EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+_LAST_NS = 2**63 - 1  # the largest log time MCAP can hold
 
 
 @dataclass(frozen=True)
@@ -33,8 +34,9 @@ class TimeBound:
     def at(self, first_ns: int) -> int:
         """The log time (ns) of this bound in a log that starts at ``first_ns``."""
         if self.unix_ns is not None:
-            return self.unix_ns
-        return first_ns + round((self.seconds or 0.0) * 1e9)  # a bound has seconds or unix_ns
+            return min(max(self.unix_ns, -_LAST_NS), _LAST_NS)
+        # (a bound has seconds or unix_ns; one past any log's time is the last log time there is)
+        return min(first_ns + round(min(self.seconds or 0.0, _LAST_NS / 1e9) * 1e9), _LAST_NS)
 
 
 def parse_time_bound(text: str, option: str = "--start") -> TimeBound:

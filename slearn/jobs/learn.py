@@ -249,7 +249,8 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
 
     Raises:
         InputError: missing logs, an existing output without ``overwrite``, an output that
-            is one of the inputs, bad parameters, nothing salvaged from damaged logs.
+            is one of the inputs, bad parameters, nothing salvaged from damaged logs, no event
+            at all in the logs (a new library).
         SpecError: the spec does not fit a log, or no spec for a log that is not a pointer log.
         LibraryFormatError: ``resume`` is not a readable library.
     """
@@ -266,6 +267,13 @@ def learn_files(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *
     if not result.n_steps and result.truncated:
         raise InputError(f"nothing could be salvaged, so nothing was written: "
                          f"{result.truncated[0].describe()}")
+    if not result.n_events and not resume:
+        names = ", ".join(f"{c.topic}:{c.field}" for c in job.spec.channels[:6])
+        names += ", ..." if len(job.spec.channels) > 6 else ""
+        raise InputError(f"{os.fspath(paths[0])}{' and the other logs' if len(paths) > 1 else ''}: no event to "
+                         f"learn, so nothing was written: the spec's channels ({names}) gave no value they can "
+                         f"take (text or a whole array under bins, or bins too fine to number?): check the "
+                         f"fields with slearn info LOG")
     records = getattr(reader, "records", {})  # computed where the logs were read
     provenance = build_provenance(paths, job.provenance, window,
                                   [records[p] for p in paths] if all(p in records for p in paths) else None)
