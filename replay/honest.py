@@ -88,11 +88,15 @@ class HonestScores:
         return [(c, n) for c, n in self.channel_events.items() if n < SMALL_SAMPLE]
 
     def warnings(self) -> list[str]:
-        """One warning per channel evaluated on too few events."""
+        """One warning per channel evaluated on too few events (none: one line for all)."""
+        small = self.small_channels()
+        if small and not any(n for _, n in small) and not self.events:
+            return ["nothing was predicted: the logs (or the time replayed) hold no observation "
+                    "after a first one, so there is no accuracy: replay more of them"]
         return [f"channel {c!r}: only {n:,} predicted events (fewer than {SMALL_SAMPLE:,}): its "
                 f"accuracy is uncertain (see the 95 % interval), and differences of a few points "
-                f"mean nothing; evaluate on more held-out data"
-                for c, n in self.small_channels()]
+                f"mean nothing; evaluate on more held-out data" if n else
+                f"channel {c!r}: no predicted event, so no accuracy" for c, n in small]
 
     def to_dict(self) -> dict:
         """The JSON ``honest`` section (rates in [0, 1], lifts in points)::

@@ -355,3 +355,29 @@ def test_experts_that_always_agreed_leave_the_prediction_to_the_all_time_counts(
     out = library.run(codes, learn=False, record=True)
     said = out.predicted[out.context]
     assert len(said) == 49 and (said == codes.token[out.context]).all()
+
+
+def test_merging_a_library_twice_or_a_log_learned_twice_is_warned_about(tmp_path):
+    import warnings as w
+
+    from slearn.errors import DataWarning
+    from slearn.jobs.learn import learn_files
+    from slearn.jobs.merge import merge_files
+    from slearn.recorders.pointer import PointerConfig
+    from slearn.recorders.record_pointer import record_pointer
+
+    logs = [tmp_path / f"s{s}.mcap" for s in (0, 1)]
+    for seed, log in enumerate(logs):
+        record_pointer(PointerConfig("simple", trials=300, seed=seed), log)
+    learn_files([logs[0]], tmp_path / "a.parquet")
+    learn_files([logs[1]], tmp_path / "b.parquet")
+    learn_files(logs, tmp_path / "ab.parquet")
+    (tmp_path / "copy.parquet").write_bytes((tmp_path / "a.parquet").read_bytes())
+    cases = [(["a", "a"], "a.parquet: given twice"), (["a", "copy"], f"the bytes of {tmp_path / 'a.parquet'}"),
+             (["ab", "b"], "s1.mcap: was learned before by another of the merged libraries"), (["a", "b"], None)]
+    for names, expected in cases:
+        with w.catch_warnings(record=True) as caught:
+            w.simplefilter("always")
+            merge_files([tmp_path / f"{n}.parquet" for n in names], tmp_path / "m.parquet", overwrite=True)
+        said = [str(c.message) for c in caught if issubclass(c.category, DataWarning)]
+        assert (expected is None and said == []) or (len(said) == 1 and expected in said[0]), said

@@ -134,7 +134,7 @@ def test_merge_tree_refuses_what_would_change_the_library(local_ray, logs, tmp_p
     for extra in (["--max-patterns", "1000"], ["--scoring", "literal"]):
         result = cli("learn", *logs["pointer"][:2], "-o", tmp_path / "x.parquet", "--workers", "2",
                      "--merge-tree", *extra)
-        assert result.exit_code == 1 and "cannot be learned on Ray" in result.output
+        assert result.exit_code == 1 and "cannot be learned with --merge-tree" in result.output
         assert not (tmp_path / "x.parquet").exists()
 
 

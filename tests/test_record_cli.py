@@ -53,19 +53,23 @@ def test_record_pointer_json_is_one_document(tmp_path):
 
 
 def test_parameters_reach_the_metadata(tmp_path):
-    path = tmp_path / "e.mcap"
-    result = _record("--condition", "error", "--trials", "20", "--error-deg", "2.5",
-                     "--delay-prob", "0.25", "-o", str(path))
-    assert result.exit_code == 0
-    with open(path, "rb") as f:
-        (record,) = list(make_reader(f).iter_metadata())
-    assert record.metadata["error_deg"] == "2.5" and record.metadata["delay_prob"] == "0.25"
+    for condition, option, value, key in (("error", "--error-deg", "2.5", "error_deg"),
+                                          ("delay", "--delay-prob", "0.25", "delay_prob")):
+        path = tmp_path / f"{condition}.mcap"
+        result = _record("--condition", condition, "--trials", "20", option, value, "-o", str(path))
+        assert result.exit_code == 0
+        with open(path, "rb") as f:
+            (record,) = list(make_reader(f).iter_metadata())
+        assert record.metadata[key] == value
 
 
-def test_bad_parameters_exit_1_with_one_line(tmp_path):
-    result = _record("--condition", "error", "--error-deg", "30", "-o", str(tmp_path / "x.mcap"))
-    assert result.exit_code == 1
-    assert len(result.stderr.strip().splitlines()) == 1 and "error_deg" in result.stderr
+def test_bad_parameters_are_usage_errors_that_write_nothing(tmp_path):
+    # out of range, as --trials is, or a parameter the condition would ignore
+    for args, message in ((["--condition", "error", "--error-deg", "30"], "30.0 is not in the range 0<=x<=10"),
+                          (["--condition", "simple", "--delay-prob", "0.2"],
+                           "--delay-prob applies to the delay condition(s): 'simple' would ignore it")):
+        result = _record(*args, "-o", str(tmp_path / "x.mcap"))
+        assert result.exit_code == 2 and message in result.stderr
     assert not list(tmp_path.iterdir())
 
 

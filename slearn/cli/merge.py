@@ -6,6 +6,7 @@ import json
 
 import click
 
+from slearn.cli.common import warnings_on_stderr
 from slearn.jobs.merge import merge_files
 
 
@@ -22,7 +23,8 @@ def command(libraries: tuple[str, ...], output: str, force: bool, as_json: bool)
     another order merge correctly. Libraries with other channels, roles, bins or maximum
     length are refused.
     """
-    summary = merge_files(list(libraries), output, overwrite=force)
+    with warnings_on_stderr():
+        summary = merge_files(list(libraries), output, overwrite=force)
     if as_json:
         click.echo(json.dumps({**summary.to_dict(), "inputs": list(libraries)}))
     else:

@@ -29,17 +29,24 @@ def command() -> None:
 @click.option("--seed", type=click.IntRange(0), default=0, show_default=True, help="Seed of all randomness.")
 @click.option("--switch-trial", type=click.IntRange(0, MAX_TRIALS), default=5_000, show_default=True,
               help="First trial of the scramble or reversal.")
-@click.option("--error-deg", type=FiniteFloat(), default=5.0, show_default=True,
+@click.option("--error-deg", type=FiniteFloat(0, 10), default=5.0, show_default=True,
               help="Half-width of the uniform move error (error), 0 to 10.")
-@click.option("--delay-prob", type=FiniteFloat(), default=0.5, show_default=True,
+@click.option("--delay-prob", type=FiniteFloat(0, 1), default=0.5, show_default=True,
               help="Chance that a command is delayed by one trial (delay), 0 to 1.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The MCAP file to write.")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
-def pointer(condition: str, trials: int, seed: int, switch_trial: int, error_deg: float,
+@click.pass_context
+def pointer(ctx: click.Context, condition: str, trials: int, seed: int, switch_trial: int, error_deg: float,
             delay_prob: float, output: Path, force: bool, as_json: bool) -> None:
     """Record one simulated rotary-pointer episode."""
+    effects = set(condition.split("+"))
+    for option, name, needs in (("--error-deg", "error_deg", {"error"}), ("--delay-prob", "delay_prob", {"delay"}),
+                                ("--switch-trial", "switch_trial", {"scramble", "reversal"})):
+        if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE and not effects & needs:
+            raise click.UsageError(f"{option} applies to the {' and '.join(sorted(needs))} condition(s): "
+                                   f"{condition!r} would ignore it")
     check_output(output, force)
     config = PointerConfig(condition, trials, seed, switch_trial, error_deg, delay_prob)
     summary = record_pointer(config, output, overwrite=force)

@@ -98,6 +98,9 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
     from slearn.replay.replay_logs import replay_logs
 
     library, logs = _split(paths, spec)
+    if library is not None and ctx.get_parameter_source("max_length") is click.core.ParameterSource.COMMANDLINE:
+        raise click.UsageError("--max-length sizes an empty library (--spec); a saved library keeps the "
+                               "length it learned with")
     inputs = [*paths, *baseline_train, *([spec] if spec else [])]
     outputs = [("--plot", plot), ("--report", report)]
     if write_mcap:

@@ -380,8 +380,9 @@ class _TickSampler:
         if self.t0 is None:
             self.t0 = log_time
         if (log_time - self.t0) // self.tick > MAX_TICKS:
-            raise InputError(f"{self.path}: more than {MAX_TICKS} ticks of {self.tick} ns: the log "
-                             f"spans {(log_time - self.t0) / 1e9:.0f} s (messages at log time 0?)")
+            raise InputError(f"{self.path}: more than {MAX_TICKS:,} ticks of {self.tick:,} ns by "
+                             f"{(log_time - self.t0) / 1e9:.6g} s into the log: use a longer tick_ms "
+                             f"(or check for messages at log time 0)")
         while self.instant() < log_time:
             self.fire()
         self.held[index] = (symbol, log_time)

@@ -447,6 +447,9 @@ def _tick_ns(data: dict, mode: str, source: str) -> int | None:
     tick = _duration_ns(data, "tick", TICK_NS_RANGE, "1 ns to a day", source)
     if tick is None and mode == "tick":
         raise SpecError(f"{source}: mode \"tick\" needs tick_ms (or tick_ns)")
+    if tick is not None and mode != "tick":
+        raise SpecError(f"{source}: tick_ms is for mode \"tick\" (every entry sampled at each tick); "
+                        f"mode {mode!r} would ignore it: set mode = \"tick\" or drop it")
     return tick
 
 

@@ -28,6 +28,7 @@ parses are not those of one run.
 from __future__ import annotations
 
 import os
+import warnings
 from typing import cast
 
 import numpy as np
@@ -38,7 +39,7 @@ from slearn.core.literal import LiteralLibrary
 from slearn.core.mixer import Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
-from slearn.errors import InputError, SpecError
+from slearn.errors import DataWarning, InputError, SpecError
 from slearn.io.files import check_output
 from slearn.io.library_file import LoadedLibrary, SaveSummary, file_record, load_library, save_library
 
@@ -85,6 +86,8 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     for path in paths[1:]:
         merged = merge_libraries(merged, load_library(path))
     merged.provenance["merged_from"] = [file_record(p) for p in paths]
+    for message in _double_counts(merged.provenance):
+        warnings.warn(DataWarning(message), stacklevel=2)
     return save_library(output, merged.library, merged.vocabulary, spec=merged.spec,
                         params=merged.params, provenance=merged.provenance, overwrite=overwrite)
 
@@ -242,6 +245,21 @@ def _merged_literal(a: LiteralLibrary, b: LiteralLibrary, tokens: TokenTable,
               "count": _summed(len(rows), wa, wb, ea["count"], eb["count"]),
               "last_seen": _recency(len(rows), wa, wb, ea["last_seen"], eb["last_seen"], a.clock)}
     return LiteralLibrary.from_export(arrays, tokens, a.clock + b.clock, a.max_length, a.max_patterns)
+
+
+def _double_counts(provenance: dict) -> list[str]:
+    """Warnings for a library file given twice (or a copy of one) and for a log that more
+    than one of the libraries learned (its time counts double, as ``learn`` warns)."""
+    from slearn.jobs.learn import repeated_inputs
+
+    seen: dict[str, str] = {}
+    for record in provenance["merged_from"]:
+        first = seen.setdefault(record["sha256"], record["path"])
+        if first is not record["path"]:
+            what = "given twice" if first == record["path"] else f"the bytes of {first}"
+            return [f"{record['path']}: {what}: its counts count double (give each library once)"]
+    return [m.replace(" into this library", " by another of the merged libraries")
+            for m in repeated_inputs(provenance.get("inputs", []))]
 
 
 def _merged_provenance(a: dict, b: dict) -> dict:

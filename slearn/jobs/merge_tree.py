@@ -120,12 +120,12 @@ def learn_on_ray(paths: Sequence[str | os.PathLike], output: str | os.PathLike, 
 
 def _refuse_order_dependent(scoring: str | None, max_patterns: int | None) -> None:
     if scoring == "literal":
-        raise InputError("--scoring literal cannot be learned on Ray: its parse depends on the whole "
-                         "run; learn it in one process (leave out --workers/--ray)")
+        raise InputError("--scoring literal cannot be learned with --merge-tree: its parse depends on "
+                         "the whole run; learn it with --workers alone, or in one process")
     if max_patterns is not None:
-        raise InputError("--max-patterns cannot be learned on Ray: one process forgets along the way, "
-                         "a merge only at the end, so the library would differ; leave it out, or "
-                         "learn in one process")
+        raise InputError("--max-patterns cannot be learned with --merge-tree: one process forgets along "
+                         "the way, a merge only at the end, so the library would differ; leave it out, or "
+                         "learn with --workers alone (the logs are read in parallel, learned in order)")
 
 
 def _learn_tasks(ray, paths: Sequence[str | os.PathLike], spec: Spec, max_length: int, window: TimeSlice | None,
