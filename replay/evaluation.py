@@ -34,7 +34,7 @@ import numpy as np
 from slearn.core._jit import kernel
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.online import Reports
+from slearn.core.online import HOLD, Reports
 from slearn.core.stream import Episode
 from slearn.core.tokens import OBSERVATION, TokenTable, _intern
 from slearn.core.views import StepCodes
@@ -88,7 +88,8 @@ class EpisodeOutcome:
         first_step: the episode step of index 0: 1 when the episode begins with a reading
             (nothing can predict it), else 0.
         truth_probability: the product of the views' shares behind what happened (frozen
-            replays; NaN online, where the library has moved on since).
+            replays; NaN online, where the library has moved on since); a view that held its
+            reading has no share, and counts 1 when it was right, 0 when wrong.
         confused: ``(predicted, actual) -> count`` of each view's wrong predictions, in the
             library's tokens (one channel's values in a factored library; abstentions left
             out, so a step where one channel abstained and the others were right is none).
@@ -120,7 +121,7 @@ class EpisodeOutcome:
         bound = np.where(self.predicted == self.actual, self.score, 1.0 - self.score)
         p = np.where(np.isnan(self.truth_probability), bound, self.truth_probability)
         p = np.where(self.predicted < 0, 0.0, p)
-        return -np.log2(np.maximum(p, SURPRISE_FLOOR))
+        return -np.log2(np.maximum(p, SURPRISE_FLOOR)) + 0.0  # (+ 0.0: no -0.0 bits when certain)
 
 
 @dataclass
@@ -340,7 +341,9 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
         if len(hit_top) else np.zeros(len(codes), bool)
     top_k = top_k & evaluated
     score = _step_product(offsets, reports.score, use)
-    truth = np.full(len(codes), np.nan) if online else _step_product(offsets, reports.truth_p, use)
+    held = reports.kind == HOLD  # (no share: a held reading counts 1 when right, 0 when wrong)
+    truth_p = np.where(held, (reports.predicted == codes.token).astype(np.float64), reports.truth_p)
+    truth = np.full(len(codes), np.nan) if online else _step_product(offsets, truth_p, use)
     length = _step_max(offsets, reports.length, use)
     columns = (actual, join(reports.predicted), top_k, score, length, join(guesses.frequency),
                join(guesses.markov), join(guesses.persistence), evaluated)

@@ -218,6 +218,14 @@ def test_a_reading_never_seen_is_held_and_right_while_it_stays():
     assert np.array_equal(np.flatnonzero(held), np.arange(101, 111))  # after each 7, nothing was seen
     assert (reports.predicted[b[101:111]] == codes.token[b[100]]).all()  # the 7 again:
     assert (codes.token[b[101:110]] == codes.token[b[100]]).all()  # right 9 times, wrong at 110
+    # a hold has no share: right, it adds no surprise (it was 16 bits, the floor, every time)
+    [point] = iter_evaluation(library, held_out(held_out_episode), vocabulary, top_k=3)
+    o, floor = point.outcome, -math.log2(SURPRISE_FLOOR)
+    first = o.first_step
+    right = [s - first for s in range(101, 110)]
+    assert (o.predicted[right] == o.actual[right]).all() and (o.surprise_bits()[right] < floor).all()
+    assert o.surprise_bits()[110 - first] == floor
+    assert (np.signbit(o.surprise_bits()) == False).all()  # noqa: E712 (no -0.0 bits)
 
 
 def test_a_channel_whose_view_abstains_is_counted_abstained_not_wrong():
