@@ -54,8 +54,9 @@ def format_table(evaluation: Evaluation) -> str:
     e, t = evaluation, evaluation.totals
     library = (e.setup.get("library") or {}).get("path") or "(empty library)"
     h = e.honest.to_dict() if e.honest is not None else None
-    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} episode(s), {t.events} predicted "
-             f"observation events, top-{e.top_k}, windows of {e.window} steps", ""]
+    lines = [f"replay of {library}: {e.mode}, {len(e.episodes)} episode(s), {t.events} predicted steps "
+             f"(every channel of a step right: the whole-step accuracy; per channel below), top-{e.top_k}, "
+             f"windows of {e.window} steps", ""]
     lines.append(f"  {'predictor':<22} {'accuracy':>10} {'95 % interval':>17} {'abstained':>10} "
                  f"{'lift':>11} {'95 % interval':>17}")
     lines += [f"  {p:<22} {a:>10} {i:>17} {b:>10} {c:>11} {d:>17}" for p, a, i, b, c, d in _summary_rows(e)]
@@ -115,7 +116,7 @@ def render_html(evaluation: Evaluation, curves_png: bytes | None = None) -> str:
     png = curves_png if curves_png is not None else draw(e)
     image = base64.b64encode(png).decode("ascii")
     parts = [f"<h1>slearn replay ({html.escape(e.mode)})</h1>",
-             f"<p>{len(e.episodes)} log(s), {t.events} predicted observation events, "
+             f"<p>{len(e.episodes)} log(s), {t.events} predicted steps (whole-step accuracy), "
              f"top-{e.top_k}, windows of {e.window} steps.</p>",
              "<h2>Accuracy</h2>",
              _table(["predictor", "accuracy", "95 % interval", "abstained", "lift of the library",

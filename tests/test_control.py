@@ -234,6 +234,18 @@ def test_cli_refuses_a_bad_library(tmp_path):
     assert out.exit_code == 1 and out.stderr.startswith("slearn: error:")
 
 
+def test_cli_refuses_a_library_of_another_system(tmp_path):
+    log = tmp_path / "p.mcap"
+    assert CliRunner().invoke(main, ["record", "pointer", "--condition", "simple", "--trials", "300",
+                                     "-o", str(log)]).exit_code == 0
+    assert CliRunner().invoke(main, ["learn", str(log), "-o", str(tmp_path / "lib.parquet"), "-q"]).exit_code == 0
+    for args, message in ((["--env-arg", "bins=72"], "its '/pointer/position' has 36 values, this pointer 72 bins"),
+                          (["--env", "gymnasium:FrozenLake-v1"], "not this environment's action channel '/env/action'")):
+        env = [] if "--env" in args else ["--condition", "simple"]
+        out = _cli("--library", tmp_path / "lib.parquet", *env, *args, "--goals", "2", "--agents", "slearn")
+        assert out.exit_code == 1 and message in out.stderr and out.stderr.count("\n") == 1, out.stderr
+
+
 def test_a_goal_already_reached_is_left_out_of_the_rates():
     start = PointerEnv("simple", 8).observation
     result = run_control(ControlConfig("pointer:simple", goal=(start,), seed=8, trials=0, agents=("slearn",)))

@@ -40,7 +40,7 @@ from slearn.control.agents import (
 from slearn.control.envs import PointerEnv, make_env
 from slearn.control.planner import PlannerSettings
 from slearn.core.library import PatternLibrary
-from slearn.core.vocabulary import Vocabulary
+from slearn.core.vocabulary import ACTION, OBSERVATION, Vocabulary
 from slearn.errors import InputError
 from slearn.recorders.mcap_episode import EpisodeWriter
 from slearn.recorders.pointer import pointer_vocabulary
@@ -332,6 +332,22 @@ def _shortest(env, goal) -> int | None:
     return None if method is None else method(goal)
 
 
+def _check_fits(vocabulary: Vocabulary, env, own: Vocabulary | None, source: str) -> None:
+    """Refuse a library learned on another system: its channels must be the environment's,
+    in their roles, and (for the pointer) its readings the environment's bins."""
+    roles = vocabulary.roles
+    for channel, role in ((env.action_channel, ACTION), (env.observation_channel, OBSERVATION)):
+        if roles.get(channel) != role:
+            raise InputError(f"{source}: learned channels {', '.join(map(repr, roles)) or 'none'}, not this "
+                             f"environment's {role} channel {channel!r}: give a library learned on it")
+    if own is not None:
+        values = {v for _, c, v in vocabulary.items() if c == env.observation_channel}
+        expected = {v for _, c, v in own.items() if c == env.observation_channel}
+        if values != expected:
+            raise InputError(f"{source}: its {env.observation_channel!r} has {len(values)} values, this "
+                             f"pointer {len(expected)} bins: give a library learned with the same bins")
+
+
 def run_control(config: ControlConfig, library: PatternLibrary | None = None,
                 vocabulary: Vocabulary | None = None, library_source: str | None = None,
                 warn=None) -> ControlResult:
@@ -356,8 +372,11 @@ def run_control(config: ControlConfig, library: PatternLibrary | None = None,
     if library is None:
         library = PatternLibrary()
         library_source = f"learned from {len(transitions)} exploration steps"
+    own = pointer_vocabulary(getattr(probe, "bins", 36)) if config.condition else None
     if vocabulary is None:
-        vocabulary = pointer_vocabulary(getattr(probe, "bins", 36)) if config.condition else Vocabulary()
+        vocabulary = own if own is not None else Vocabulary()
+    elif library_source is not None:
+        _check_fits(vocabulary, probe, own, library_source)
     before = len(library)
     trace = Trace(probe.observation, [], [], [], [])
     results = [_run_agent(name, config, transitions, goals, library, vocabulary, trace)
