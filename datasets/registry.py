@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import warnings
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -30,7 +31,7 @@ from typing import Callable
 
 from slearn import __version__
 from slearn.core.vocabulary import Vocabulary
-from slearn.errors import InputError, SpecError
+from slearn.errors import DataWarning, InputError, SpecError
 from slearn.io.bags import open_log
 from slearn.io.files import claim_folder, release_folder, write_atomic
 from slearn.io.serialize import read_episodes
@@ -89,6 +90,7 @@ class BuildSummary:
     cards: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     checksums: str | None = None
+    damaged: str | None = None  # how a --source log broke (then it holds what was salvaged)
 
     def to_dict(self) -> dict:
         """A JSON-ready dict."""
@@ -146,6 +148,8 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
     if source is not None and _inside(source, folder):
         raise InputError(f"--source {source} is inside the output folder {folder}, which the build "
                          f"replaces: copy the log elsewhere first")
+    if source is not None:
+        _source_span(Path(source))  # (a log that cannot serve is refused before the folder is touched)
     claim_folder(folder, overwrite=overwrite, advice="pass --force to rebuild the dataset there")
     summary = BuildSummary(name, str(folder))
     dataset.build(folder, summary, Path(source) if source is not None else None)
@@ -296,19 +300,16 @@ def _build_pr2_sample(root: Path, summary: BuildSummary, source: Path | None) ->
 def _add_source(source: Path, folders: dict[str, Path], root: Path,
                 summary: BuildSummary) -> tuple[str, str]:
     """Split ``source`` by time into ``train/`` and ``heldout/``; the card's text and figures."""
-    if not source.exists():
-        raise InputError(f"--source {source}: no such log (give an MCAP file, a rosbag2 folder, "
-                         f"a .db3 or a .bag)")
+    span = _source_span(source)
     stem = source.name.split(".")[0] or "log"
-    with open_log(source) as log:
-        span = log.time_range()
-    if span is None:
-        raise InputError(f"--source {source}: the log has no messages")
     targets = {}
     for split in (TRAIN, HELDOUT):
         low, high = TimeSlice(split=SOURCE_SPLIT, part=split).window(*span)
         targets[split] = folders[split] / f"{stem}-{split}.mcap"
-        copy_log(source, targets[split], start_ns=low, end_ns=high, overwrite=True)
+        copied = copy_log(source, targets[split], start_ns=low, end_ns=high, overwrite=True)
+        if copied.damage and not summary.damaged:
+            summary.damaged = copied.damage
+            warnings.warn(DataWarning(f"{copied.damage}: the dataset holds what could be salvaged"), stacklevel=2)
     spec = load_spec(root / SPEC_FILE)
     counts = {split: _check_fits(source, path, spec, folders) for split, path in targets.items()}
     for split, path in targets.items():
@@ -319,6 +320,18 @@ def _add_source(source: Path, folders: dict[str, Path], root: Path,
              f"{100 * SOURCE_SPLIT:.0f} % of its time went to `train/{targets[TRAIN].name}` "
              f"({counts[TRAIN]}), the rest to `heldout/{targets[HELDOUT].name}` ({counts[HELDOUT]}).")
     return found, _figures().log_figures(targets[TRAIN], targets[HELDOUT], root / SPEC_FILE)
+
+
+def _source_span(source: Path) -> tuple[int, int]:
+    """The log times of ``source``'s messages, or a one-line refusal."""
+    if not source.exists():
+        raise InputError(f"--source {source}: no such log (give an MCAP file, a rosbag2 folder, "
+                         f"a .db3 or a .bag)")
+    with open_log(source) as log:
+        span = log.time_range()
+    if span is None:
+        raise InputError(f"--source {source}: the log has no messages")
+    return span
 
 
 def _check_fits(source: Path, path: Path, spec, folders: dict[str, Path]) -> str:

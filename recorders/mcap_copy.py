@@ -76,6 +76,7 @@ class CopySummary:
     messages: int
     start_ns: int | None
     end_ns: int | None
+    damage: str | None = None  # how the source broke, when it was truncated or corrupt
 
 
 def copy_log(source: str | os.PathLike, target: str | os.PathLike, *, start_ns: int = 0,
@@ -98,4 +99,5 @@ def copy_log(source: str | os.PathLike, target: str | os.PathLike, *, start_ns: 
                 count += 1
                 first = message.log_time_ns if first is None else first
                 last = message.log_time_ns
-    return CopySummary(str(target), str(source), count, first, last)
+        damage = log.report.describe() if log.report.truncated else None
+    return CopySummary(str(target), str(source), count, first, last, damage)

@@ -62,3 +62,15 @@ def simple_pointer(pointer_log, tmp_path_factory):
     library = tmp_path_factory.mktemp("simple-library") / "lib.parquet"
     assert CliRunner().invoke(main, ["learn", "-q", str(log), "-o", str(library)]).exit_code == 0
     return log, library
+
+
+@pytest.fixture(scope="session")
+def two_simple_libraries(simple_pointer, tmp_path_factory):
+    """Two libraries learned from the halves of ``simple_pointer``'s log (a merge of them
+    counts nothing twice)."""
+    log = simple_pointer[0]
+    folder = tmp_path_factory.mktemp("two-libraries")
+    halves = folder / "first.parquet", folder / "second.parquet"
+    for path, bound in zip(halves, (["--end", "25"], ["--start", "25"])):
+        assert CliRunner().invoke(main, ["learn", "-q", str(log), "-o", str(path), *bound]).exit_code == 0
+    return halves

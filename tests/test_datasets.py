@@ -178,3 +178,24 @@ def test_build_errors(tmp_path):
     with pytest.raises(InputError, match="--source is for pr2-sample"):
         build_dataset("pointer-arm", tmp_path / "y", source=tmp_path / "full" / "mine.txt")
     assert not (tmp_path / "y").exists()
+
+
+def test_a_source_that_cannot_serve_touches_no_folder(tmp_path):
+    out = tmp_path / "ds"
+    result = CliRunner().invoke(main, ["datasets", "build", "pr2-sample", "-o", str(out),
+                                       "--source", str(tmp_path / "missing.mcap")])
+    assert result.exit_code == 1 and "no such log" in result.stderr.splitlines()[-1]
+    assert not out.exists()  # (the spec and empty split folders were written first)
+
+
+@pytest.mark.shared
+@pytest.mark.skipif(not PR2_LOG.exists(), reason="needs ../shared")
+def test_a_truncated_source_is_salvaged_with_a_warning_and_exit_3(tmp_path):
+    cut = tmp_path / "cut.mcap"
+    data = PR2_LOG.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    result = CliRunner().invoke(main, ["datasets", "build", "pr2-sample", "-o", str(tmp_path / "ds"),
+                                       "--source", str(cut)])
+    assert result.exit_code == 3, result.output
+    assert "truncated or corrupt log" in result.stderr and "the dataset holds what could be salvaged" in result.stderr
+    assert (tmp_path / "ds" / "SHA256SUMS").exists()

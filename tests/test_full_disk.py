@@ -54,12 +54,12 @@ def old_file(folder: Path, name: str) -> Path:
     return path
 
 
-def test_learn_and_merge(simple_pointer, tmp_path, monkeypatch):
+def test_learn_and_merge(simple_pointer, two_simple_libraries, tmp_path, monkeypatch):
     log, library = simple_pointer
     full_disk(monkeypatch, ".parquet")
     out = old_file(tmp_path, "out.parquet")
     assert_refused(run("learn", "-q", log, "-o", out, "--force"), tmp_path, out)
-    assert_refused(run("merge", library, library, "-o", out, "--force"), tmp_path, out)
+    assert_refused(run("merge", *two_simple_libraries, "-o", out, "--force"), tmp_path, out)
 
 
 def test_info_suggest_spec(simple_pointer, tmp_path, monkeypatch):
@@ -155,11 +155,12 @@ def read_only(monkeypatch):
     monkeypatch.setattr(files.os, "open", refuse)
 
 
-def test_a_read_only_folder_is_one_line_for_every_writer(simple_pointer, tmp_path, monkeypatch):
+def test_a_read_only_folder_is_one_line_for_every_writer(simple_pointer, two_simple_libraries, tmp_path,
+                                                         monkeypatch):
     log, library = simple_pointer
     out = tmp_path / "out"
     cases = [("learn", "-q", log, "-o", out / "lib.parquet"),
-             ("merge", library, library, "-o", out / "lib.parquet"),
+             ("merge", *two_simple_libraries, "-o", out / "lib.parquet"),
              ("record", "pointer", "--condition", "simple", "--trials", "1000", "-o", out / "p.mcap"),
              ("replay", library, log, "--write-mcap", out / "a.mcap", "-q"),
              ("replay", library, log, "--plot", out / "a.png", "-q"),

@@ -84,13 +84,18 @@ def test_a_context_passes_on_what_it_never_saw():
 
 
 def test_the_recent_experts_prediction_leads_its_ranking():
-    # with no evidence yet a context's latest outcome speaks (ties go to recent); the
-    # ranking still gives each item its probability: b 1/5, a 2/5
+    # after "x", a 5 times, then b 3 times: the latest outcome was right where the counts
+    # lagged, so it speaks (b); the ranking still gives each item its probability by the
+    # counts: b 3/10, a 5/10
     model = SequenceModel()
-    for seq in ["xa", "xa", "xb"]:
+    for seq in ["xa"] * 5 + ["xb"] * 3:
         model.learn(seq)
-    assert model.rank("x", k=3) == [("b", pytest.approx(0.2)), ("a", pytest.approx(0.4))]
+    assert model.rank("x", k=3) == [("b", pytest.approx(0.3)), ("a", pytest.approx(0.5))]
     assert model.predict("x") == "b"
+    tied = SequenceModel()  # experts that never disagreed where it mattered: the counts speak
+    for seq in ["xa", "xa", "xb"]:
+        tied.learn(seq)
+    assert tied.rank("x", k=3) == [("a", pytest.approx(0.4)), ("b", pytest.approx(0.2))]
 
 
 def test_literal_rankings_are_shares_of_the_longest_match():

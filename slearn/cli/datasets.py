@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from slearn.cli import EXIT_TRUNCATED
 from slearn.cli.common import warnings_on_stderr
 from slearn.datasets.registry import BuildSummary, build_dataset, list_datasets
 
@@ -45,6 +46,8 @@ def build(name: str, output: Path, source: Path | None, force: bool, as_json: bo
     with warnings_on_stderr():
         summary = build_dataset(name, output, overwrite=force, source=source)
     click.echo(json.dumps(summary.to_dict()) if as_json else _render(summary))
+    if summary.damaged:
+        click.get_current_context().exit(EXIT_TRUNCATED)
 
 
 def _render(summary: BuildSummary) -> str:

@@ -254,10 +254,11 @@ def _double_counts(provenance: dict) -> list[str]:
 
     seen: dict[str, str] = {}
     for record in provenance["merged_from"]:
-        first = seen.setdefault(record["sha256"], record["path"])
-        if first is not record["path"]:
+        first = seen.get(record["sha256"])
+        if first is not None:
             what = "given twice" if first == record["path"] else f"the bytes of {first}"
             return [f"{record['path']}: {what}: its counts count double (give each library once)"]
+        seen[record["sha256"]] = record["path"]
     return [m.replace(" into this library", " by another of the merged libraries")
             for m in repeated_inputs(provenance.get("inputs", []))]
 
