@@ -116,6 +116,18 @@ def test_bursts_have_no_rate_and_topics_and_windows_select(tmp_path):
     only = json.loads(run("--json", "--topics", "/s", "--start", "0.5", "--end", "1", path).stdout)
     [channel] = only["files"][0]["channels"]
     assert channel["topic"] == "/s" and channel["count"] == 5
+    missing = run("--topics", "/s,/nope", path)  # (it showed 0 messages and exited 0)
+    assert missing.exit_code == 1 and f"{path}: --topics /nope not in this log" in missing.stderr
+
+
+def test_suggest_spec_reads_logs_not_libraries(tmp_path):
+    path = write_log(tmp_path / "b.mcap", [("/s", i * 100_000_000, {"v": i % 3}) for i in range(20)])
+    library = tmp_path / "lib.parquet"
+    assert CliRunner().invoke(main, ["learn", "-q", str(path), "-o", str(library),
+                                     "--channel", "/s:v:observation"]).exit_code == 0
+    result = run(library, "--suggest-spec", tmp_path / "s.toml")  # (it wrote an empty spec)
+    assert result.exit_code == 1 and "is a library, not a log: --suggest-spec reads logs" in result.stderr
+    assert not (tmp_path / "s.toml").exists()
 
 
 def test_truncated_log_exits_3_and_still_reports(log, tmp_path):

@@ -9,6 +9,7 @@ import click
 
 from slearn.cli import EXIT_TRUNCATED
 from slearn.cli.common import make_slice, slice_options, topic_list
+from slearn.errors import InputError
 from slearn.io.files import check_output, write_atomic
 from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time, suggest_spec
 from slearn.jobs.suggest import with_action_scopes
@@ -106,6 +107,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     window = make_slice(start, end, None)
     results = [describe(path, topic_list(topics), window) for path in paths]
     logs = [r for r in results if isinstance(r, LogProfile)]
+    if spec_out and len(logs) < len(results):
+        library = next(p for p, r in zip(paths, results) if not isinstance(r, LogProfile))
+        raise InputError(f"{library} is a library, not a log: --suggest-spec reads logs (a library "
+                         f"carries the spec it learned with: slearn info {library} shows it)")
+    for log in logs:
+        missing = sorted(set(topic_list(topics) or ()) - {c.topic for c in log.channels})
+        if missing and not log.report.truncated:
+            raise InputError(f"{log.path}: --topics {', '.join(missing)} not in this log (slearn info "
+                             f"{log.path} lists its topics)")
     if as_json:
         click.echo(json.dumps({"files": [_as_dict(r) for r in results]}, indent=2, default=str))
     else:
