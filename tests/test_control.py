@@ -250,4 +250,6 @@ def test_a_goal_already_reached_is_left_out_of_the_rates():
     start = PointerEnv("simple", 8).observation
     result = run_control(ControlConfig("pointer:simple", goal=(start,), seed=8, trials=0, agents=("slearn",)))
     assert result.agents[0].outcomes[0].steps == 0 and result.slearn.goals == 0
+    from slearn.cli.control import render
+    assert "slearn: 1 goal(s) already reached where it started are left out of its rates" in render(result)
     assert result.to_dict()["agents"][0]["summary"]["success"] is None

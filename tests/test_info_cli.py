@@ -168,3 +168,13 @@ def test_real_logs_profile():
     assert counts["/joint_states"] == 1325 and counts["/tf"] == 3734
     joints = next(c for c in profile.channels if c.topic == "/joint_states")
     assert any(f.path.startswith("position[name=") for f in joints.fields)
+
+
+def test_an_angle_in_degrees_on_a_full_turn_grid_is_suggested_wrapping(tmp_path):
+    path = write_log(tmp_path / "a.mcap", [("/p", i * 100_000_000, {"angle_deg": 5.0 + 10 * (i * 7 % 36)})
+                                           for i in range(200)])
+    assert run(path, "--suggest-spec", tmp_path / "s.toml").exit_code == 0
+    [entry] = [c for c in load_spec(tmp_path / "s.toml").channels if c.field == "angle_deg"]
+    bins = entry.symbolizer
+    assert bins.wrap and bins.range == (0.0, 360.0) and bins.count == 36 and bins.unit == "deg"
+    assert bins.symbol_value(355) == 35 and bins.symbol_value(365) == 0  # (past the turn: wrapped)

@@ -130,6 +130,10 @@ def render(result: ControlResult) -> str:
                       f"{slearn.summary.explored_steps} exploring steps"]
     if result.agent("q-one-goal") is not None:
         lines += ["Q, one goal: trained for one goal, then given new ones (the paper's argument)"]
+    for agent in result.agents:
+        if agent.summary.goals < c.n_goals:
+            lines += [f"{agent.label}: {c.n_goals - agent.summary.goals} goal(s) already reached where it "
+                      f"started are left out of its rates"]
     if len(result.agents[0].blocks) > 1:
         lines += ["", *_block_lines(result)]
     return "\n".join(lines)

@@ -120,6 +120,11 @@ def _number_keys(info: FieldInfo) -> tuple[list[str], str]:
                      'unit = "rad"'],
                     f"{info.n_distinct} values on a grid of {math.degrees(step):g} degrees covering "
                     f"the full turn: one bin per value, wrapping")
+        if _is_angle(info) and abs(count * step - 360.0) < 0.01 * 360.0:  # an angle in degrees
+            return ([f"range = [{_num(low)}, {_num(low + 360.0)}]", f"count = {count}", "wrap = true",
+                     'unit = "deg"'],
+                    f"{info.n_distinct} values on a grid of {step:g} degrees covering the full turn: "
+                    f"one bin per value, wrapping")
         return ([f"range = [{_num(low)}, {_num(high)}]", f"count = {count}"],
                 f"{info.n_distinct} values on a grid of step {step:g}: one bin per value")
     if _is_angle(info) and hi - lo > 0.9 * TURN:
