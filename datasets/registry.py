@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 from string import Template
-from typing import Callable
+from typing import Callable, NamedTuple
 
 from slearn import __version__
 from slearn.core.vocabulary import Vocabulary
@@ -104,7 +104,7 @@ class Dataset:
     name: str
     summary: str
     license: str
-    build: Callable[[Path, BuildSummary, Path | None], None]
+    build: Callable[[Path, BuildSummary, Source | None], None]
 
     def to_dict(self) -> dict:
         """Name, summary and license."""
@@ -148,11 +148,10 @@ def build_dataset(name: str, folder: str | os.PathLike, *, overwrite: bool = Fal
     if source is not None and _inside(source, folder):
         raise InputError(f"--source {source} is inside the output folder {folder}, which the build "
                          f"replaces: copy the log elsewhere first")
-    if source is not None:
-        _source_span(Path(source))  # (a log that cannot serve is refused before the folder is touched)
+    given = None if source is None else _source(Path(source))  # (refused before the folder is touched)
     claim_folder(folder, overwrite=overwrite, advice="pass --force to rebuild the dataset there")
     summary = BuildSummary(name, str(folder))
-    dataset.build(folder, summary, Path(source) if source is not None else None)
+    dataset.build(folder, summary, given)
     summary.checksums = str(_write_checksums(folder))
     release_folder(folder)
     return summary
@@ -225,7 +224,7 @@ def _seed_splits() -> list[tuple[str, int]]:
 
 # --- pointer-paper ---------------------------------------------------------------------------
 
-def _build_pointer_paper(root: Path, summary: BuildSummary, source: Path | None) -> None:
+def _build_pointer_paper(root: Path, summary: BuildSummary, source: Source | None) -> None:
     folders = _split_folders(root)
     episodes = []
     for condition in CONDITIONS:
@@ -248,7 +247,7 @@ def _listing(seeds: tuple[int, ...]) -> str:
 
 # --- pointer-arm -----------------------------------------------------------------------------
 
-def _build_pointer_arm(root: Path, summary: BuildSummary, source: Path | None) -> None:
+def _build_pointer_arm(root: Path, summary: BuildSummary, source: Source | None) -> None:
     tables = []
     for joints in range(1, MAX_JOINTS + 1):
         sub = root / f"joints-{joints}"
@@ -280,7 +279,7 @@ def _figures():
 
 # --- pr2-sample ------------------------------------------------------------------------------
 
-def _build_pr2_sample(root: Path, summary: BuildSummary, source: Path | None) -> None:
+def _build_pr2_sample(root: Path, summary: BuildSummary, source: Source | None) -> None:
     folders = _split_folders(root)
     spec_text = _write_spec(root / SPEC_FILE, _package_text("pr2-sample.toml"), summary)
     if source is None:
@@ -297,10 +296,10 @@ def _build_pr2_sample(root: Path, summary: BuildSummary, source: Path | None) ->
                 figures=figures, files=files, share=f"{100 * SOURCE_SPLIT:.0f}")
 
 
-def _add_source(source: Path, folders: dict[str, Path], root: Path,
+def _add_source(given: Source, folders: dict[str, Path], root: Path,
                 summary: BuildSummary) -> tuple[str, str]:
     """Split ``source`` by time into ``train/`` and ``heldout/``; the card's text and figures."""
-    span = _source_span(source)
+    source, span = given
     stem = source.name.split(".")[0] or "log"
     targets = {}
     for split in (TRAIN, HELDOUT):
@@ -322,8 +321,15 @@ def _add_source(source: Path, folders: dict[str, Path], root: Path,
     return found, _figures().log_figures(targets[TRAIN], targets[HELDOUT], root / SPEC_FILE)
 
 
-def _source_span(source: Path) -> tuple[int, int]:
-    """The log times of ``source``'s messages, or a one-line refusal."""
+class Source(NamedTuple):
+    """A ``--source`` log and the log times of its messages."""
+
+    path: Path
+    span: tuple[int, int]
+
+
+def _source(source: Path) -> Source:
+    """``source`` with the time span of its messages, or a one-line refusal."""
     if not source.exists():
         raise InputError(f"--source {source}: no such log (give an MCAP file, a rosbag2 folder, "
                          f"a .db3 or a .bag)")
@@ -331,7 +337,7 @@ def _source_span(source: Path) -> tuple[int, int]:
         span = log.time_range()
     if span is None:
         raise InputError(f"--source {source}: the log has no messages")
-    return span
+    return Source(source, span)
 
 
 def _check_fits(source: Path, path: Path, spec, folders: dict[str, Path]) -> str:

@@ -90,7 +90,7 @@ class HonestScores:
     def warnings(self) -> list[str]:
         """One warning per channel evaluated on too few events (none: one line for all)."""
         small = self.small_channels()
-        if small and not any(n for _, n in small) and not self.events:
+        if small and not self.events:
             return ["nothing was predicted: the logs (or the time replayed) hold no observation "
                     "after a first one, so there is no accuracy: replay more of them"]
         return [f"channel {c!r}: only {n:,} predicted events (fewer than {SMALL_SAMPLE:,}): its "

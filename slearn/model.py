@@ -37,6 +37,7 @@ _PREDICTORS_KEPT = 4    # predictors a model keeps, one per k asked (each rememb
 #                         a predictor follows the library as it learns)
 SCORINGS = ("adaptive", "literal")
 _HOLD = REPORT_KINDS.index("hold")
+_NONE = object()  # (a channel the prediction has no value of)
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
 
@@ -80,7 +81,6 @@ class SequenceModel:
         self._rows_of: dict = {}      # a step's (actions, observations) items -> its symbols,
         self._rows_for: Vocabulary | None = None  # in this vocabulary
         self._unstorable_said = False  # whether learning warned of a value files cannot store
-        self._ranks_for: tuple = (None, 0, {})  # (vocabulary, channels, channel -> its rank)
 
     # --- the sequence form --------------------------------------------------------------
     def learn(self, sequence: Iterable[Hashable]) -> None:
@@ -199,10 +199,9 @@ class SequenceModel:
         with self._registering():
             rows = [self._step_symbols(step, learn=True) for step in steps]
         self._use("steps")
-        if rows:
-            self._learn(Episode.from_steps(rows))
-            if self._scopes and self.library is not None and self.library.clock == len(rows):
-                self._warn_unseen_scope_channels()  # once, after the first episode
+        self._learn(Episode.from_steps(rows))
+        if self._scopes and self.library is not None and self.library.clock == len(rows):
+            self._warn_unseen_scope_channels()  # once, after the first episode
 
     def _warn_unseen_scope_channels(self) -> None:
         roles = self.vocabulary.roles
@@ -256,7 +255,6 @@ class SequenceModel:
                 acts, obs = known(step[0], ACTION), known(step[1], OBSERVATION)
                 if acts is None or obs is None:
                     return None
-                acts, obs = self._symbols_in_channel_order(acts), self._symbols_in_channel_order(obs)
                 if len(row_of) >= _ROWS_KEPT:
                     self._rows_of = row_of = {}
                 row = row_of[key] = (acts, obs)
@@ -264,7 +262,6 @@ class SequenceModel:
         acts = known(actions, ACTION) if type(actions) is dict else None
         if acts is None:
             return None
-        acts = self._symbols_in_channel_order(acts)
         return self._named_of(self._predictor_for(k).predict(rows, acts), k)
 
     # --- files --------------------------------------------------------------------------
@@ -349,34 +346,9 @@ class SequenceModel:
         for role, mapping in _roles(step):
             for channel in mapping:
                 self.vocabulary.add_channel(str(channel), role) if learn else None
-            out.append(tuple(self._symbol(c, v, learn) for c, v in self._in_channel_order(mapping)))
+            pairs = self.vocabulary.in_channel_order((str(c), v) for c, v in mapping.items())
+            out.append(tuple(self._symbol(c, v, learn) for c, v in pairs))
         return out[0], out[1]
-
-    def _in_channel_order(self, mapping: Mapping) -> list[tuple[str, Hashable]]:
-        """A step mapping's ``(channel, value)`` pairs in the order the channels were first
-        declared (as a spec orders the channels of a log's steps), whatever the order of its
-        keys: a step's actions are one token, so equal mappings must give equal tuples."""
-        pairs = [(str(c), v) for c, v in mapping.items()]
-        if len(pairs) > 1:
-            rank = self._channel_ranks()
-            pairs.sort(key=lambda pair: rank.get(pair[0], len(rank)))
-        return pairs
-
-    def _symbols_in_channel_order(self, symbols: tuple[int, ...]) -> tuple[int, ...]:
-        """Known symbols of one step's mapping, ordered as :meth:`_in_channel_order` orders them."""
-        if len(symbols) < 2:
-            return symbols
-        rank, name = self._channel_ranks(), self.vocabulary.name
-        return tuple(sorted(symbols, key=lambda s: rank[name(s)[0]]))
-
-    def _channel_ranks(self) -> dict[str, int]:
-        """Channel -> its place in the vocabulary's declaration order."""
-        vocabulary = self.vocabulary
-        known, n, rank = self._ranks_for
-        if known is not vocabulary or n != len(vocabulary.roles):
-            rank = {c: i for i, c in enumerate(vocabulary.roles)}
-            self._ranks_for = (vocabulary, len(rank), rank)
-        return rank
 
     def _known_steps(self, items: Sequence[Hashable]) -> list | None:
         """The items as the predictor's steps, ``((), (symbol,))`` each (the same tuples every
@@ -468,7 +440,7 @@ class SequenceModel:
             row = []
             for role, mapping in _roles(step):
                 symbols = []
-                for channel, value in self._in_channel_order(mapping):
+                for channel, value in self.vocabulary.in_channel_order((str(c), v) for c, v in mapping.items()):
                     if roles.get(channel) != role:
                         raise ParameterError(_unknown_channel(channel, role, roles))
                     s = self._symbol(channel, value, learn=False)
@@ -502,9 +474,10 @@ class SequenceModel:
                     channel, value = name(symbol)
                     values = shares.setdefault(channel, {})
                     values[value] = values.get(value, 0.0) + p
+            said = dict(name(s) for s in ranked[0][0]) if ranked else {}  # channel -> predicted value
             for channel, values in shares.items():
-                said = [name(s)[1] for s in (ranked[0][0] if ranked else ()) if name(s)[0] == channel]
-                order = sorted(values, key=lambda value: (value not in said, -values[value]))
+                first = said.get(channel, _NONE)
+                order = sorted(values, key=lambda value: (value != first, -values[value]))
                 out[channel] = [(value, values[value]) for value in order[:k]]
         return out
 

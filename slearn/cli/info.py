@@ -105,14 +105,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     if spec_out:
         check_output(spec_out, force, inputs=paths)
     window = make_slice(start, end, None)
-    results = [describe(path, topic_list(topics), window) for path in paths]
+    wanted = topic_list(topics)
+    results = [describe(path, wanted, window) for path in paths]
     logs = [r for r in results if isinstance(r, LogProfile)]
     if spec_out and len(logs) < len(results):
         library = next(p for p, r in zip(paths, results) if not isinstance(r, LogProfile))
         raise InputError(f"{library} is a library, not a log: --suggest-spec reads logs (a library "
                          f"carries the spec it learned with: slearn info {library} shows it)")
     for log in logs:
-        missing = sorted(set(topic_list(topics) or ()) - {c.topic for c in log.channels})
+        missing = sorted(set(wanted or ()) - {c.topic for c in log.channels})
         if missing and not log.report.truncated:
             raise InputError(f"{log.path}: --topics {', '.join(missing)} not in this log (slearn info "
                              f"{log.path} lists its topics)")

@@ -33,7 +33,6 @@ from slearn.core.context_tree import (
     fetch_entry_slots,
     fetch_nodes,
     hit_probability,
-    node_total,
     path_hash,
     ranks_above,
     refresh,
@@ -260,7 +259,7 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
     at 1, so the probabilities sum to at most 1). After the prediction, outcomes are
     ordered by probability. ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
     weight = fresh if kind == FRESH else count
-    total = node_total(first, nxt, weight, node)
+    total, distinct = _weight_sums(first, nxt, weight, node)
     out.predicted[r] = said
     out.length[r] = length
     out.kind[r] = kind
@@ -268,7 +267,7 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
     out.truth_p[r] = _share(first, nxt, weight, outcome, node, truth, total)
     top, top_p = out.top, out.top_p
     top[r, 0] = said
-    top_p[r, 0] = _share(first, nxt, weight, outcome, node, said, total + _distinct(first, nxt, weight, node))
+    top_p[r, 0] = out.score[r] * total / (total + distinct) if total > 0 else 0.0  # (w / (n + d))
     filled = 1
     mass = 1.0
     for k in range(length, 0, -1):  # the chosen context's ranking, then shorter contexts'
@@ -313,15 +312,17 @@ def _share(first, nxt, weight, outcome, node, token, total):
 
 
 @helper
-def _distinct(first, nxt, weight, node):
-    """How many of a node's outcomes have weight (count or fresh)."""
-    d = 0
+def _weight_sums(first, nxt, weight, node):
+    """A node's summed ``weight`` (count or fresh) and how many of its outcomes have any:
+    PPM's ``n`` and ``d``, in one walk."""
+    total, distinct = 0, 0
     e = first[node]
     while e != -1:
+        total += weight[e]
         if weight[e] > 0:
-            d += 1
+            distinct += 1
         e = nxt[e]
-    return d
+    return total, distinct
 
 
 @helper
@@ -334,10 +335,9 @@ def _rank_into(top, top_p, r, filled, mass, first, node, nxt, weight, last_seen,
     outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
-    total = node_total(first, nxt, weight, node)
+    total, distinct = _weight_sums(first, nxt, weight, node)
     if total <= 0:
         return filled, mass
-    distinct = _distinct(first, nxt, weight, node)
     scale = mass / (total + distinct)
     e = first[node]
     while e != -1:

@@ -49,12 +49,14 @@ class Vocabulary:
     value_labels: dict[str, Callable[[Hashable], str]] = field(default_factory=dict, compare=False,
                                                                repr=False)
     """Per channel, how its values read (bins as value ranges); set from the spec."""
+    _rank: dict[str, int] = field(default_factory=dict, compare=False, repr=False)  # channel -> its place
 
     def add_channel(self, channel: str, role: str) -> None:
         """Declare ``channel`` with its role; re-declaring with another role is an error."""
         if role not in ROLES:
             raise InputError(f"channel {channel!r}: role must be one of {ROLES}, not {role!r}")
         known = self.roles.setdefault(channel, role)
+        self._rank.setdefault(channel, len(self._rank))
         if known != role:
             raise InputError(f"channel {channel!r} is declared both {known} and {role}")
 
@@ -78,7 +80,7 @@ class Vocabulary:
             del self._symbols[key]
         del self._names[symbols:]
         for channel in list(self.roles)[channels:]:
-            del self.roles[channel]
+            del self.roles[channel], self._rank[channel]
             self.value_labels.pop(channel, None)
 
     def get_symbol(self, channel: str, value: Hashable) -> int | None:
@@ -86,12 +88,13 @@ class Vocabulary:
         return self._symbols.get((channel, value))
 
     def known_symbols(self, mapping: dict, role: str) -> tuple[int, ...] | None:
-        """The symbols of a ``{channel: value}`` mapping, in its order, or ``None`` when a
-        channel is not one of ``role`` or a value was never registered (or is not hashable)."""
+        """The symbols of a ``{channel: value}`` mapping, in :meth:`in_channel_order`, or
+        ``None`` when a channel is not one of ``role`` or a value was never registered (or
+        is not hashable)."""
         get, roles = self._symbols.get, self.roles
         out = []
         try:
-            for channel, value in mapping.items():
+            for channel, value in self.in_channel_order(mapping.items()):
                 found = get((channel, value))
                 if found is None or roles[channel] != role:
                     return None
@@ -99,6 +102,17 @@ class Vocabulary:
         except (KeyError, TypeError):
             return None
         return tuple(out)
+
+    def in_channel_order(self, pairs: Iterable[tuple[str, Hashable]]) -> list[tuple[str, Hashable]]:
+        """One step's ``(channel, value)`` pairs in the order the channels were declared (as a
+        spec orders the channels of a log's steps; channels never declared last), whatever
+        the order they come in: a step's actions are one token, so equal sets of pairs must
+        give equal tuples."""
+        pairs = list(pairs)
+        if len(pairs) > 1:
+            rank, last = self._rank, len(self._rank)
+            pairs.sort(key=lambda pair: rank.get(pair[0], last))
+        return pairs
 
     def get_symbols(self, channel: str, values: Iterable[Hashable]) -> list[int | None]:
         """:meth:`get_symbol` of each value (raises ``TypeError`` for one not hashable)."""
