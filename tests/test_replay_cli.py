@@ -205,3 +205,13 @@ def test_replaying_what_the_library_learned_is_warned_about(files, tmp_path):
     assert "learned this log" not in run(split, files["train"], "--split", "0.7", "-q").stderr
     assert "overlaps the time it learned" in run(split, files["train"], "-q").stderr
     assert "may overlap the time it learned" in run(split, files["train"], "--start", "1", "-q").stderr
+
+
+def test_options_a_saved_library_ignores_and_replays_of_nothing_say_so(files):
+    sized = run(files["library"], files["test"], "--max-length", "3")  # (accepted and ignored)
+    assert sized.exit_code == 2 and "a saved library keeps the length it learned with" in sized.stderr
+    empty = run(files["library"], files["test"], "--start", "149.95", "--quiet")  # the last reading alone
+    assert empty.exit_code == 0, empty.output
+    assert "slearn: warning: nothing was predicted: the logs (or the time replayed) hold no observation " \
+        "after a first one, so there is no accuracy: replay more of them" in empty.stderr.splitlines()
+    assert "uncertain" not in empty.stderr  # (it said: 0 predicted events, see the 95 % interval)

@@ -193,6 +193,7 @@ def test_every_message_is_an_event_unless_the_spec_asks_for_change():
 
 @pytest.mark.parametrize("extra, message", [
     ({"phase_ms": 10}, "phase_ms is for mode"),
+    ({"tick_ms": 10}, "tick_ms is for mode \"tick\""),  # (mode message ignored it silently)
     ({"mode": "tick", "tick_ms": 100, "phase_ms": 150}, "at most one tick"),
     ({"mode": "tick", "tick_ms": 100, "phase_ms": 0}, "above 0"),
 ])
