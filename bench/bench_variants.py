@@ -17,9 +17,11 @@ Steady state is the last half of the run, minus the 2,000 trials after each swit
 5000-7999, the paper's ``reversal`` over 7000-9999, a 50,000-trial run over 25,000-49,999.
 ``slearn - VOM`` is slearn's steady-state figure minus the best VOM's. For every switch the
 second table compares the thousand trials after it with the first thousand of the run
-(from an empty library). The last table is the paper's six conditions in the windows of
-the demo's acceptance figures: thousands 6-10, or the thousand after the switch (6) for
-``scramble`` and ``reversal``. Percent, mean over seeds; abstentions count as wrong.
+(from an empty library) and with an empty library that starts learning at the switch
+(``slearn new``: the same thousand trials, so what they cost by themselves is left out).
+The last table is the paper's six conditions in the windows of the demo's acceptance
+figures: thousands 6-10, or the thousand after the switch (6) for ``scramble`` and
+``reversal``. Percent, mean over seeds; abstentions count as wrong.
 
 With ``--arm``, a last table runs the pointer arm (:mod:`slearn.recorders.arm`: 1-4
 joints, sensors ``moved`` and ``all``, conditions ``simple`` and ``error``) over thousands
@@ -118,6 +120,9 @@ def measure(config: PointerConfig) -> dict[str, np.ndarray]:
     out.update({f"VOM{k}.5": peers.half[:, k - 1] for k in range(1, MAX_ORDER)})
     out[f"AKOM{PEER_ORDER}"], out[f"PPM-C{PEER_ORDER}"] = peers.akom, peers.ppm
     out["ceiling"] = oracle_correct(run)
+    for trial in switches(config):  # an empty library from the switch on, the same trials
+        out[f"empty at {trial}"] = np.asarray(slearn_correct(episode.slice_steps(trial, len(episode))),
+                                              bool)[:1000]
     return out
 
 
@@ -190,8 +195,9 @@ def summarize(variant: Variant, runs: list[dict[str, np.ndarray]], config: Point
     for trial in switches(config):
         after = np.zeros(config.trials, bool)
         after[trial:trial + 1000] = True
+        restart = 100.0 * float(np.mean([r[f"empty at {trial}"].mean() for r in runs]))
         out["switches"].append({"trial": trial, "first_thousand": _percent(runs, first),
-                                "after": _percent(runs, after)})
+                                "after": _percent(runs, after), "empty_at_switch": restart})
     if variant in DEFAULTS:
         out["demo"] = _with_best(_percent(runs, demo_mask(config)))
     return out
@@ -229,14 +235,17 @@ def render(results: list[dict], seeds: list[int]) -> str:
     lines = [f"steady state (last half, minus {SETTLE} trials after each switch), "
              f"% mean of seeds {_seed_text(seeds)}"]
     lines += _head("variant") + [_row(r["name"], r["steady"]) for r in results]
-    lines += ["", "after each switch: the thousand after it / the first thousand of the run"]
+    lines += ["", "after each switch: the thousand after it / the first thousand of the run "
+              "(slearn new: an empty library learning from the switch on, the same thousand)"]
     shown = ["slearn", "VOM1", "VOM2", "VOM3", "VOM1.5", "VOM2.5"] + OTHERS
-    head = f"{'variant':<27}{'switch':>7} " + " ".join(f"{c:>11}" for c in shown)
+    head = (f"{'variant':<27}{'switch':>7} {shown[0]:>11} {'slearn new':>10} "
+            + " ".join(f"{c:>11}" for c in shown[1:]))
     lines += [head, "-" * len(head)]
     for r in results:
         for s in r["switches"]:
-            lines.append(f"{r['name']:<27}{s['trial']:>7} " + " ".join(
-                f"{s['after'][c]:5.1f}/{s['first_thousand'][c]:<5.1f}" for c in shown))
+            cells = [f"{s['after'][c]:5.1f}/{s['first_thousand'][c]:<5.1f}" for c in shown]
+            lines.append(f"{r['name']:<27}{s['trial']:>7} {cells[0]} {s['empty_at_switch']:10.1f} "
+                         + " ".join(cells[1:]))
     demo = [r for r in results if "demo" in r]
     if demo:
         lines += ["", "the six conditions in the demo's windows (thousands 6-10; 6 after a switch)"]

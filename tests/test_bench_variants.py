@@ -66,6 +66,9 @@ def test_a_run_gives_every_column_and_the_tables(capsys):
     assert 45 <= delay["steady"]["ceiling"] <= 55
     assert delay["steady"]["best_vom_order"] == "1.5"  # the command before the position matters
     assert back["switches"][0]["first_thousand"]["slearn"] > 85
+    # an empty library from each switch on learns the same thousand trials as from scratch
+    assert all(85 < s["empty_at_switch"] <= 100 for s in back["switches"])
+    assert "slearn new" in bench.render(results, [0])
     text = bench.render(results, [0])
     assert text.count("reversal @3000 back @6000") == 3 and "delay" in text
     json.dumps(results)
