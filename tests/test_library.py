@@ -79,6 +79,23 @@ class OccurrencesAgainstNaive(RuleBasedStateMachine):
                 assert np.array_equal(export["fresh"][rows], export["count"][rows])
 
 
+    @invariant()
+    def node_sums_are_those_of_the_entries(self):
+        assert_fresh_sums(self.library)
+
+
+def assert_fresh_sums(library: PatternLibrary) -> None:
+    """Each node's ``fresh_total`` and ``fresh_outcomes`` are its entries' fresh counts summed
+    and counted (what the detector's hit probability reads instead of walking them)."""
+    if library.tree is None:
+        return
+    tree = library.tree
+    n, m = int(tree.size[0]), int(tree.size[1])
+    owner, fresh = tree.owner[:m], tree.fresh[:m]
+    assert np.array_equal(tree.fresh_total[:n], np.bincount(owner, weights=fresh, minlength=n).astype(np.int64))
+    assert np.array_equal(tree.fresh_outcomes[:n], np.bincount(owner[fresh > 0], minlength=n))
+
+
 TestOccurrencesAgainstNaive = OccurrencesAgainstNaive.TestCase
 TestOccurrencesAgainstNaive.settings = settings(max_examples=40, stateful_step_count=8, deadline=None)
 
@@ -158,6 +175,7 @@ def test_merging_separately_learned_libraries_equals_one_run(episodes, cut):
     for key in ("view", "pattern_offsets", "pattern_tokens", "count", "last_seen"):
         assert np.array_equal(a[key], b[key]), key
     assert merged.clock == one.clock
+    assert_fresh_sums(merged)
 
 
 def test_merge_keeps_the_order_of_first_sight_and_shifts_recency():
@@ -181,10 +199,22 @@ def test_export_round_trip_keeps_patterns_and_learning_state():
                                        view_names=library.view_names, mixer=library.mixer,
                                        max_length=3, has_actions=True)
     assert again.patterns() == library.patterns()
+    assert_fresh_sums(again)
     follow_up = pointer_like(rng, 500)
     library.learn(follow_up)
     again.learn(follow_up)
     assert again.patterns() == library.patterns()
+    assert_fresh_sums(again)
+
+
+def test_node_sums_follow_alarms_and_forgetting():
+    # an iid stream over many symbols: its contexts seen once raise alarms (new epochs)
+    rng = np.random.default_rng(5)
+    library = PatternLibrary(max_length=3, max_patterns=3000)
+    for _ in range(3):
+        library.learn(Episode.from_pairs([2], rng.integers(0, 2, 3000), rng.integers(2, 60, 3000)))
+    assert library.mixer is not None and library.mixer.epoch.max() > 0 and library.forgotten > 0
+    assert_fresh_sums(library)
 
 
 @settings(max_examples=20, deadline=None)

@@ -372,7 +372,8 @@ class PatternLibrary:
                     cast(Mixer, self.mixer).epoch, view, offsets, flat, counts, seen, fresh, shift, lo, hi)
         tree = self.tree
         _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
-                     tree.best, tree.newest, tree.fresh_best, int(tree.size[0]))
+                     tree.best, tree.newest, tree.fresh_best, tree.fresh_total, tree.fresh_outcomes,
+                     int(tree.size[0]))
 
     def nbytes(self) -> int:
         """Bytes held by the library's arrays (tree, weights, streams; not the tokens)."""
@@ -451,7 +452,7 @@ def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
     out.first[: len(kept_nodes)] = -1
     _link_entries(out.owner, out.first, out.next, len(kept_entries))
     _derive_best(out.first, out.next, out.count, out.last_seen, out.fresh, out.outcome, out.best,
-                 out.newest, out.fresh_best, len(kept_nodes))
+                 out.newest, out.fresh_best, out.fresh_total, out.fresh_outcomes, len(kept_nodes))
     context_tree.rebuild_nodes(out.node_slots, out.parent, out.token, len(kept_nodes))
     rebuild(out.entry_slots, out.owner, out.outcome, 0, len(kept_entries))
     return out
@@ -472,12 +473,17 @@ def _link_entries(owner, first, nxt, m):
 
 
 @kernel
-def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fresh_best, n):
-    """Recompute each node's best, newest and freshest entry from the entries' numbers."""
+def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fresh_best, fresh_total,
+                 fresh_outcomes, n):
+    """Recompute each node's best, newest and freshest entry and its fresh sums from the
+    entries' numbers."""
     for node in range(n):
         b, w, f = -1, -1, -1
+        total, outcomes = 0, 0
         e = first[node]
         while e != -1:
+            total += fresh[e]
+            outcomes += 1 if fresh[e] > 0 else 0
             if b == -1 or count[e] > count[b] or (count[e] == count[b] and last_seen[e] > last_seen[b]):
                 b = e
             if w == -1 or last_seen[e] > last_seen[w]:
@@ -487,6 +493,8 @@ def _derive_best(first, nxt, count, last_seen, fresh, outcome, best, newest, fre
                 f = e
             e = nxt[e]
         best[node], newest[node], fresh_best[node] = b, w, f
+        fresh_total[node] = min(total, context_tree.SATURATED)
+        fresh_outcomes[node] = outcomes
 
 
 @kernel

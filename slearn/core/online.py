@@ -118,6 +118,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
+    fresh_total, fresh_outcomes = tree.fresh_total, tree.fresh_outcomes
     weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
     recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
     K = weights.shape[1]  # the longest context, in tokens
@@ -190,9 +191,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                     kt = trusted_length(weights, v, cand, m, ep)
                     if kt > 0:
                         nd = nodes[kt]
-                        fresh_counts = ep > 0
-                        b = fresh_best[nd] if fresh_counts else best[nd]
-                        p_hit = hit_probability(first, nxt, fresh if fresh_counts else count, nd, b)
+                        b = fresh_best[nd] if ep > 0 else best[nd]  # fresh counts are all-time in epoch 0
+                        p_hit = hit_probability(first, nxt, fresh, fresh_total, fresh_outcomes, nd, b)
                         if detect(weights, detector, v, outcome[b] == x, p_hit):
                             epoch[v] += 1
                     ep = epoch[v]
@@ -200,9 +200,10 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                         fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, x)
                     for k in range(1, n + 1):
                         nd = nodes[k]
-                        refresh(first, nxt, fresh, fresh_best, node_epoch, nd, ep)
+                        refresh(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, nd, ep)
                         e = entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size, nd, x)
-                        credit(count, last_seen, fresh, best, newest, fresh_best, e, nd, clock[0])
+                        credit(count, last_seen, fresh, best, newest, fresh_best, fresh_total, fresh_outcomes, e, nd,
+                               clock[0])
             recent[v, filled[v] & M] = x
             filled[v] += 1
             held[v] = x
