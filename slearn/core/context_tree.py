@@ -310,14 +310,17 @@ def credit(count, last_seen, fresh, best, newest, fresh_best, fresh_total, fresh
 
 
 @helper
-def node_total(first, nxt, weight, node):
-    """The summed ``weight`` (count or fresh) of a node's entries."""
-    total = 0
+def weight_sums(first, nxt, weight, node):
+    """A node's summed ``weight`` (count or fresh) and how many of its outcomes have any:
+    PPM's ``n`` and ``d``, in one walk."""
+    total, distinct = 0, 0
     e = first[node]
     while e != -1:
         total += weight[e]
+        if weight[e] > 0:
+            distinct += 1
         e = nxt[e]
-    return total
+    return total, distinct
 
 
 @helper
@@ -325,25 +328,11 @@ def hit_probability(first, nxt, fresh, fresh_total, fresh_outcomes, node, e):
     """How likely entry ``e``'s outcome follows ``node`` again, by its fresh counts (the
     all-time counts in a view's first epoch), by PPM's method C: its count over the node's
     total plus one escape count per distinct outcome (what was never seen after the
-    context keeps that share). From the node's sums, or a walk when they saturated."""
-    if fresh_total[node] < SATURATED:
-        total = fresh_total[node]
-        return fresh[e] / (total + fresh_outcomes[node]) if total > 0 else 0.0
-    return walked_probability(first, nxt, fresh, node, e)
-
-
-@helper
-def walked_probability(first, nxt, weight, node, e):
-    """:func:`hit_probability` by a walk of the node's entries, for any ``weight``."""
-    total = 0
-    distinct = 0
-    f = first[node]
-    while f != -1:
-        if weight[f] > 0:
-            total += weight[f]
-            distinct += 1
-        f = nxt[f]
-    return weight[e] / (total + distinct) if total > 0 else 0.0
+    context keeps that share). From the node's sums; by a walk when they saturated."""
+    total, distinct = fresh_total[node], fresh_outcomes[node]
+    if total >= SATURATED:
+        total, distinct = weight_sums(first, nxt, fresh, node)
+    return fresh[e] / (total + distinct) if total > 0 else 0.0
 
 
 @helper

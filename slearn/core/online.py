@@ -37,6 +37,7 @@ from slearn.core.context_tree import (
     ranks_above,
     refresh,
     root_path,
+    weight_sums,
 )
 from slearn.core.mixer import FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core.views import NO_ACTIONS, NO_TOKEN
@@ -260,7 +261,7 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
     at 1, so the probabilities sum to at most 1). After the prediction, outcomes are
     ordered by probability. ``ranked`` is scratch of ``top_k`` entries (see ``_rank_into``)."""
     weight = fresh if kind == FRESH else count
-    total, distinct = _weight_sums(first, nxt, weight, node)
+    total, distinct = weight_sums(first, nxt, weight, node)
     out.predicted[r] = said
     out.length[r] = length
     out.kind[r] = kind
@@ -313,20 +314,6 @@ def _share(first, nxt, weight, outcome, node, token, total):
 
 
 @helper
-def _weight_sums(first, nxt, weight, node):
-    """A node's summed ``weight`` (count or fresh) and how many of its outcomes have any:
-    PPM's ``n`` and ``d``, in one walk."""
-    total, distinct = 0, 0
-    e = first[node]
-    while e != -1:
-        total += weight[e]
-        if weight[e] > 0:
-            distinct += 1
-        e = nxt[e]
-    return total, distinct
-
-
-@helper
 def _rank_into(top, top_p, r, filled, mass, first, node, nxt, weight, last_seen, outcome, ranked):
     """Append ``node``'s outcomes to row ``r`` of ``top`` in rank order, skipping those
     already there, each with ``mass`` times its weight over the node's total plus its
@@ -336,7 +323,7 @@ def _rank_into(top, top_p, r, filled, mass, first, node, nxt, weight, last_seen,
     outcomes: O(outcomes x top_k)."""
     start = filled
     k = top.shape[1]
-    total, distinct = _weight_sums(first, nxt, weight, node)
+    total, distinct = weight_sums(first, nxt, weight, node)
     if total <= 0:
         return filled, mass
     scale = mass / (total + distinct)
