@@ -51,7 +51,7 @@ class _Params(ctypes.Structure):
     _fields_ = [("n_views", ctypes.c_int32), ("K", ctypes.c_int32), ("has_actions", ctypes.c_int32),
                 ("empty_action", ctypes.c_int32), ("empty_observation", ctypes.c_int32),
                 ("beta", ctypes.c_double), ("floor_", ctypes.c_double), ("threshold", ctypes.c_double),
-                ("fresh_tie", ctypes.c_double)]
+                ("fresh_tie", ctypes.c_double), ("prior", ctypes.c_double), ("octaves", ctypes.c_int32)]
 
 
 def load_c_learn(folder: Path, prefetch: bool = False):
@@ -66,7 +66,7 @@ def load_c_learn(folder: Path, prefetch: bool = False):
                    check=True, capture_output=True)
     lib = ctypes.CDLL(str(library))
     lib.slearn_learn.restype = ctypes.c_int64
-    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
+    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 13 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
     return lib.slearn_learn
 
 
@@ -87,10 +87,10 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
                      float(np.log(1.0 / mixer.FALSE_ALARM)),
-                     float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]))
+                     float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]), mixer.PRIOR, mixer.OCTAVES)
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,
-        streams.recent.ctypes.data, streams.filled.ctypes.data, streams.held.ctypes.data,
+        mix.calibration.ctypes.data, streams.recent.ctypes.data, streams.filled.ctypes.data, streams.held.ctypes.data,
         streams.root.ctypes.data, *(a.ctypes.data for a in arrays), ctypes.c_int64(len(codes)),
         ctypes.c_int64(0), ctypes.byref(params))
     return out
@@ -100,7 +100,7 @@ def same_library(a: PatternLibrary, b: PatternLibrary) -> list[str]:
     """The names of the arrays where two libraries differ (empty: byte-identical)."""
     ea, eb = a.export(), b.export()
     diff = [k for k in ea if ea[k].tobytes() != eb[k].tobytes()]
-    for name, x, y in zip(("weight", "detector", "epoch"), a.mixer, b.mixer):
+    for name, x, y in zip(a.mixer._fields, a.mixer, b.mixer):
         if np.asarray(x).tobytes() != np.asarray(y).tobytes():
             diff.append(name)
     return diff + (["clock"] if a.clock != b.clock else [])

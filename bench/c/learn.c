@@ -9,7 +9,8 @@
  * view's root; the experts of slearn/core/mixer.py (frequent, recent and fresh outcome of each
  * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
  * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
- * PPM-C's estimate in its context), and every context counts one more
+ * PPM-C's estimate in its context, calibrated by the hits of its cell: the octaves of the
+ * context's count and of the odds against a miss), and every context counts one more
  * occurrence of the observation (count, last_seen, fresh count with lazy epoch reset).
  *
  * Hash tables hold record ids; a record's key is (parent, token) for nodes and
@@ -159,15 +160,30 @@ static int trusted_length(const double *w, const int32_t *cand, int n, int32_t e
     return out;
 }
 
-static double hit_probability(const tree_t *t, const int64_t *weight, int32_t node, int32_t e) {
-    int64_t total = 0, distinct = 0;
+static void weight_sums(const tree_t *t, const int64_t *weight, int32_t node,
+                        int64_t *total, int64_t *distinct) {
+    *total = 0, *distinct = 0;
     for (int32_t f = t->first[node]; f != -1; f = t->next[f])
-        if (weight[f] > 0) total += weight[f], distinct++;
-    return total > 0 ? (double)weight[e] / (double)(total + distinct) : 0.0;
+        if (weight[f] > 0) *total += weight[f], (*distinct)++;
 }
 
-static int detect(double *w, double *det, int K, int hit, double p_hit,
-                  double threshold, double fresh_tie) {
+static int calibration_cell(int64_t c, int64_t total, int64_t distinct, int octaves) {
+    int count_octave = 0, odds_octave = 0;
+    while (count_octave < octaves - 1 && (total >> (count_octave + 1)) > 0) count_octave++;
+    int64_t whole = total + distinct, miss = whole - c;
+    while (odds_octave < octaves - 1 && (miss << (odds_octave + 1)) <= whole) odds_octave++;
+    return count_octave * octaves + odds_octave;
+}
+
+static int detect(double *w, double *det, int64_t *cal, int K, int hit, int64_t c, int64_t total,
+                  int64_t distinct, double threshold, double fresh_tie, double prior, int octaves) {
+    if (total <= 0) return 0;
+    int64_t *cell = &cal[2 * calibration_cell(c, total, distinct, octaves)];
+    double share = (double)c / (double)(total + distinct);
+    double evidence = prior + (double)total;
+    double p_hit = ((double)cell[0] + evidence * share) / ((double)cell[1] + evidence);
+    cell[0] += hit ? 1 : 0;
+    cell[1] += 1;
     double q0 = 1.0 - p_hit;
     double q1 = 0.5 * (1.0 + q0);
     double step = hit ? log((1.0 - q1) / (1.0 - q0)) : log(q1 / q0);
@@ -187,10 +203,11 @@ static int detect(double *w, double *det, int K, int hit, double p_hit,
 
 typedef struct {
     int32_t n_views, K, has_actions, empty_action, empty_observation;
-    double beta, floor_, threshold, fresh_tie;
+    double beta, floor_, threshold, fresh_tie, prior;
+    int32_t octaves;
 } params_t;
 
-int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch,
+int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch, int64_t *calibration,
                      int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
                      const int32_t *action, const int64_t *offsets, const int32_t *view,
                      const int32_t *token, int64_t n_steps, int64_t clock, const params_t *p) {
@@ -249,9 +266,12 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 int kt = trusted_length(w, cand, m, ep);
                 if (kt > 0) {
                     int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];
-                    double p_hit = hit_probability(t, ep > 0 ? t->fresh : t->count, nd, b);
-                    if (detect(w, &detector[v * 3], K, t->outcome[b] == x, p_hit, p->threshold,
-                               p->fresh_tie))
+                    const int64_t *weight = ep > 0 ? t->fresh : t->count;
+                    int64_t total, distinct;
+                    weight_sums(t, weight, nd, &total, &distinct);
+                    if (detect(w, &detector[v * 3], &calibration[(int64_t)v * 2 * p->octaves * p->octaves], K,
+                               t->outcome[b] == x, weight[b], total, distinct, p->threshold, p->fresh_tie,
+                               p->prior, p->octaves))
                         epoch[v] += 1;
                 }
                 ep = epoch[v];

@@ -14,7 +14,7 @@ Per node, ``best`` (most occurrences, ties to the newest), ``newest`` (seen last
 counts only grow: the entry just counted is the newest, so it takes over on a tie.
 ``fresh_total`` and ``fresh_outcomes`` (a node's fresh counts summed, and how many of its
 outcomes have one) are kept the same way, so the probability PPM's method C gives an
-outcome (:func:`hit_probability`, asked once per learned observation) costs O(1), not a
+outcome (:func:`fresh_sums`, asked once per learned observation) costs O(1), not a
 walk of the node's outcomes (a context followed by 1,000 different items made learning
 100 us per item). In a view's first epoch fresh counts are the all-time counts.
 Fresh counts belong to the epoch written in the node and are reset lazily, when a node
@@ -324,15 +324,14 @@ def weight_sums(first, nxt, weight, node):
 
 
 @helper
-def hit_probability(first, nxt, fresh, fresh_total, fresh_outcomes, node, e):
-    """How likely entry ``e``'s outcome follows ``node`` again, by its fresh counts (the
-    all-time counts in a view's first epoch), by PPM's method C: its count over the node's
-    total plus one escape count per distinct outcome (what was never seen after the
-    context keeps that share). From the node's sums; by a walk when they saturated."""
+def fresh_sums(first, nxt, fresh, fresh_total, fresh_outcomes, node):
+    """A node's fresh counts summed and how many of its outcomes have one (the all-time
+    counts in a view's first epoch): PPM's ``n`` and ``d``, from the node's sums, or by a
+    walk when they saturated."""
     total, distinct = fresh_total[node], fresh_outcomes[node]
     if total >= SATURATED:
         total, distinct = weight_sums(first, nxt, fresh, node)
-    return fresh[e] / (total + distinct) if total > 0 else 0.0
+    return total, distinct
 
 
 @helper

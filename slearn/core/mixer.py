@@ -24,7 +24,23 @@ escape count per distinct outcome), and the test accumulates the
 log-likelihood ratio of ``q1 = (1 + q0) / 2`` against it, so a miss where the context is
 nearly certain weighs much, a miss where it is a coin toss little. It raises an alarm past
 ``ln(1 / FALSE_ALARM)`` (the false-alarm rate per prediction is at most ``FALSE_ALARM``
-when the shares are calibrated). An alarm opens a new epoch:
+when the shares are calibrated).
+
+Calibration. PPM's shares are not calibrated where contexts are seen a few times: a
+context seen once gives its outcome 1/2, whether the stream is a clock or a die of a
+thousand faces, and the test took every miss of a once-seen context of a random stream
+as evidence of a change (hundreds of false alarms in 200,000 symbols). So the share is
+corrected by what happened to shares like it, as PPMZ's secondary escape estimation
+(Bloom 1998) and paq's adaptive probability maps correct a model's probabilities: each
+view counts, per *cell* (the octave of the context's count, times the octave of the
+odds ``1 / q0``), how often the trusted expert was right, over all time, and the test
+uses ``(hits + e * p) / (trials + e)`` with ``e = n + PRIOR``: the cell's record and PPM's
+own share ``p``, each weighed by its evidence (the cell's trials; the context's count
+``n``, plus ``PRIOR`` pseudo-observations so that an empty cell keeps PPM's share). A
+context seen once weighs three predictions, so the cells of a random stream correct it
+after a few dozen; a context seen a thousand times keeps its share until its cell has
+seen thousands of predictions, so the misses just after a change, which land in the
+cell too, do not teach the test to expect them. An alarm opens a new epoch:
 fresh counts restart from zero (:mod:`slearn.core.context_tree`), and the ``FRESH`` experts
 start just below the weights of the frequency experts of the same length (or keep their
 own, if higher), so they speak once they are better: after the first prediction where
@@ -38,7 +54,8 @@ stream that drifted A, B, C predicted a held-out run of A's as B's while ties we
 ``RECENT``), and with no evidence yet the simplest explanation speaks. No constant is
 tuned to a data set:
 ``ETA`` is Hedge's rate for tens of experts over ~10^4 predictions, ``SPREAD`` bounds the
-catch-up to ``SPREAD / ETA`` net mistakes, and ``FALSE_ALARM`` is a rate; the measured
+catch-up to ``SPREAD / ETA`` net mistakes, ``FALSE_ALARM`` is a rate and ``PRIOR`` the
+evidence (two predictions) PPM's share has where a context was never seen; the measured
 tables in ``bench/`` are flat over a factor of two in each.
 """
 
@@ -63,6 +80,10 @@ _TIE = np.array([1.0, 1.0 - 2e-9, 1.0 - 4e-9])  # prior weight per kind: FREQUEN
 _BELOW = float(_TIE[FRESH] / _TIE[FREQUENT])  # a FRESH expert's start after an alarm, relative to its twin
 ASLEEP = 0.0  # the weight of FRESH experts before the first epoch
 CUSUM, MISSES, TRIALS = 0, 1, 2
+OCTAVES = 16  # calibration cells per axis: counts 1 to 2^15 and more, odds 1 to 2^15 and more
+CELLS = OCTAVES * OCTAVES
+HITS, SEEN = 0, 1
+PRIOR = 2.0  # PPM's share weighs as the context's count plus this many predictions
 
 
 class Mixer(NamedTuple):
@@ -71,12 +92,14 @@ class Mixer(NamedTuple):
     ``weight[v, k - 1, kind]`` is the weight of expert ``(k, kind)`` of view ``v``, relative
     to the view's leader (so in ``[exp(-SPREAD), 1]``, or ``ASLEEP``); ``detector[v]`` holds
     ``(cusum, misses, trials)`` of the view's test since its epoch began; ``epoch[v]``
-    counts the view's alarms.
+    counts the view's alarms; ``calibration[v, cell]`` holds ``(hits, trials)`` of the
+    test's predictions in each :func:`calibration_cell`, over all time.
     """
 
-    weight: np.ndarray    # float64 (views, K, 3)
-    detector: np.ndarray  # float64 (views, 3)
-    epoch: np.ndarray     # int32 (views,)
+    weight: np.ndarray       # float64 (views, K, 3)
+    detector: np.ndarray     # float64 (views, 3)
+    epoch: np.ndarray        # int32 (views,)
+    calibration: np.ndarray  # int64 (views, CELLS, 2)
 
 
 def new_mixer(views: int, max_context: int) -> Mixer:
@@ -84,7 +107,8 @@ def new_mixer(views: int, max_context: int) -> Mixer:
     weight = np.empty((views, max_context, N_KINDS))
     weight[:] = (_TIE / _TIE.max()) * (1.0 - 1e-12 * np.arange(max_context))[:, None]
     weight[:, :, FRESH] = ASLEEP
-    return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32))
+    return Mixer(weight, np.zeros((views, 3)), np.zeros(views, np.int32),
+                 np.zeros((views, CELLS, 2), np.int64))
 
 
 def with_views(mixer: Mixer, views: int) -> Mixer:
@@ -191,15 +215,43 @@ def trusted_length(w, v, cand, n, epoch):
 
 
 @helper
-def detect(w, det, v, hit, p_hit):
-    """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test.
+def calibration_cell(c, total, distinct):
+    """The calibration cell of a share ``c / (total + distinct)`` by PPM's method C (an
+    outcome seen ``c`` times after a context seen ``total`` times, with ``distinct``
+    outcomes): the octave of ``total``, times the octave of the odds against a miss,
+    ``(total + distinct) / (total + distinct - c)``. In integers, so any implementation
+    agrees on the cell."""
+    count_octave = 0
+    while count_octave < OCTAVES - 1 and total >> (count_octave + 1) > 0:
+        count_octave += 1
+    whole = np.int64(total) + distinct
+    miss = whole - c
+    odds_octave = 0
+    while odds_octave < OCTAVES - 1 and miss << (odds_octave + 1) <= whole:
+        odds_octave += 1
+    return count_octave * OCTAVES + odds_octave
 
-    ``p_hit`` is the expert's own probability of being right (see the module docstring):
-    the test compares the misses with the
-    misses expected context by context, so easy and hard contexts do not pass for a change.
-    Returns whether the test raised an alarm (and if so, resets it and starts the
-    ``FRESH`` experts from their frequency twins).
+
+@helper
+def detect(w, det, cal, v, hit, c, total, distinct):
+    """Feed one prediction of the trusted frequency expert to view ``v``'s CUSUM test: its
+    outcome was seen ``c`` times after a context seen ``total`` times with ``distinct``
+    outcomes (fresh counts), and it was right or not (``hit``).
+
+    The expected miss rate is one minus the share PPM's method C gives the outcome,
+    calibrated by the view's cell of such shares (see the module docstring): the test
+    compares the misses with the misses expected context by context, so easy and hard
+    contexts do not pass for a change. Returns whether the test raised an alarm (and if
+    so, resets it and starts the ``FRESH`` experts from their frequency twins).
     """
+    if total <= 0:
+        return False
+    cell = calibration_cell(c, total, distinct)
+    share = c / (total + distinct)
+    evidence = PRIOR + total
+    p_hit = (cal[v, cell, HITS] + evidence * share) / (cal[v, cell, SEEN] + evidence)
+    cal[v, cell, HITS] += 1 if hit else 0
+    cal[v, cell, SEEN] += 1
     q0 = 1.0 - p_hit
     q1 = 0.5 * (1.0 + q0)
     step = np.log((1.0 - q1) / (1.0 - q0)) if hit else np.log(q1 / q0)

@@ -32,7 +32,7 @@ from slearn.core.context_tree import (
     fetch_entries,
     fetch_entry_slots,
     fetch_nodes,
-    hit_probability,
+    fresh_sums,
     path_hash,
     ranks_above,
     refresh,
@@ -120,7 +120,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
     fresh_total, fresh_outcomes = tree.fresh_total, tree.fresh_outcomes
-    weights, detector, epoch = mixer.weight, mixer.detector, mixer.epoch
+    weights, detector, epoch, calibration = mixer.weight, mixer.detector, mixer.epoch, mixer.calibration
     recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
@@ -193,8 +193,8 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                     if kt > 0:
                         nd = nodes[kt]
                         b = fresh_best[nd] if ep > 0 else best[nd]  # fresh counts are all-time in epoch 0
-                        p_hit = hit_probability(first, nxt, fresh, fresh_total, fresh_outcomes, nd, b)
-                        if detect(weights, detector, v, outcome[b] == x, p_hit):
+                        total, distinct = fresh_sums(first, nxt, fresh, fresh_total, fresh_outcomes, nd)
+                        if detect(weights, detector, calibration, v, outcome[b] == x, fresh[b], total, distinct):
                             epoch[v] += 1
                     ep = epoch[v]
                     if fetch_entry:

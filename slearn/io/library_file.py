@@ -1,7 +1,8 @@
 """Pattern libraries on disk: one Parquet file holds a library, its vocabulary and its spec.
 
-Layout (format ``slearn-library``, version 3; version 2 files, which have no action
-scopes, are read too). Four tables share one schema; a row belongs to the table named in
+Layout (format ``slearn-library``, version 4; version 3 files, which have no
+``view_calibration``, and version 2 files, which also have no action scopes, are read
+too, their detectors' calibration starting from none). Four tables share one schema; a row belongs to the table named in
 its ``table`` column, each table has its own row groups (written in this order) and the
 columns of the other tables are null::
 
@@ -19,6 +20,7 @@ columns of the other tables are null::
     view_epoch      int32          view        alarms of the view's change detector
     view_detector   list<float64>  view        its test: cusum, misses, trials
     view_weights    list<float64>  view        expert weights over the leader, (context length, kind)
+    view_calibration list<int64>   view        the test's hits and trials per calibration cell
     view            int32          pattern     the view the pattern belongs to
     pattern         list<int32>    pattern     tokens: the context, oldest first, then the outcome
     parent          int32          pattern     literal libraries: row of the prefix, -1
@@ -55,7 +57,7 @@ import pyarrow.parquet as pq
 
 from slearn.core.library import PatternLibrary, check_scopes
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import Mixer
+from slearn.core.mixer import CELLS, Mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import STORABLE, Vocabulary, storable
 from slearn.errors import InputError, LibraryFormatError, ParameterError
@@ -69,6 +71,7 @@ ROW_GROUP_ROWS = 1 << 20
 
 _INT32 = pa.list_(pa.field("item", pa.int32(), nullable=False))
 _FLOAT64 = pa.list_(pa.field("item", pa.float64(), nullable=False))
+_INT64 = pa.list_(pa.field("item", pa.int64(), nullable=False))
 SCHEMA = pa.schema([
     ("table", pa.string()),
     ("channel", pa.string()),
@@ -82,6 +85,7 @@ SCHEMA = pa.schema([
     ("view_epoch", pa.int32()),
     ("view_detector", _FLOAT64),
     ("view_weights", _FLOAT64),
+    ("view_calibration", _INT64),
     ("view", pa.int32()),
     ("pattern", _INT32),
     ("parent", pa.int32()),
@@ -90,6 +94,7 @@ SCHEMA = pa.schema([
     ("fresh", pa.int64()),
 ])
 _INT64_RANGE = (-(1 << 63), (1 << 63) - 1)
+_SINCE = {"view_calibration": 4}  # columns added after version 2, by the version that added them
 
 
 @dataclass
@@ -247,7 +252,7 @@ def _vocabulary_table(vocabulary: Vocabulary, spec: Spec | None, path: Path) -> 
 def _list_array(offsets: np.ndarray, values: np.ndarray, path: Path, kind=_INT32) -> pa.ListArray:
     if len(values) > np.iinfo(np.int32).max:
         raise InputError(f"{path}: more than 2**31 values in one table; lower --max-patterns")
-    dtype = np.int32 if kind == _INT32 else np.float64
+    dtype = {_INT32: np.int32, _INT64: np.int64, _FLOAT64: np.float64}[kind]
     return pa.ListArray.from_arrays(pa.array(offsets.astype(np.int32)),
                                     pa.array(values.astype(dtype, copy=False)), type=kind)
 
@@ -272,6 +277,8 @@ def _view_table(library) -> pa.Table:
                                      Path("<views>"), _FLOAT64),
         "view_weights": _list_array(np.arange(n + 1) * weights.shape[1], weights.ravel(),
                                     Path("<views>"), _FLOAT64),
+        "view_calibration": _list_array(np.arange(n + 1) * 2 * CELLS, mixer.calibration[:n].ravel(),
+                                        Path("<views>"), _INT64),
     })
 
 
@@ -356,7 +363,7 @@ def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library (no "
                                  f"'slearn' metadata): make libraries with `slearn learn`")
     doc = parse_header(raw, path)  # before the columns: an old format is named as such
-    if columns != _stored_columns():  # pyarrow aborts the process on some mislabelled columns
+    if columns != _stored_columns(doc["version"]):  # pyarrow aborts the process on some mislabelled columns
         raise LibraryFormatError(f"{path}: corrupted pattern library (its columns are not the "
                                  f"library's): re-create it with `slearn learn`")
     return parquet, doc
@@ -370,10 +377,11 @@ def _columns(parquet: pq.ParquetFile) -> tuple:
 
 
 @functools.cache
-def _stored_columns() -> tuple:
-    """:func:`_columns` of a file written with :data:`SCHEMA`."""
+def _stored_columns(version: int) -> tuple:
+    """:func:`_columns` of a file of format ``version`` (:data:`SCHEMA`, without the
+    columns added later)."""
     sink = pa.BufferOutputStream()
-    pq.write_table(SCHEMA.empty_table(), sink)
+    pq.write_table(pa.schema([f for f in SCHEMA if _SINCE.get(f.name, 0) <= version]).empty_table(), sink)
     return _columns(pq.ParquetFile(pa.BufferReader(sink.getvalue())))
 
 
@@ -471,18 +479,27 @@ def _read_tokens(parquet: pq.ParquetFile, groups: list[int], n_symbols: int, pat
     return TokenTable.from_export(offsets, symbols, kinds)
 
 
-def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int,
+def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, version: int,
                 path: Path) -> tuple[list[str], Mixer]:
-    table = _read(parquet, groups, ["channel", "view_epoch", "view_detector", "view_weights"])
+    calibrated = version >= _SINCE["view_calibration"]
+    table = _read(parquet, groups, ["channel", "view_epoch", "view_detector", "view_weights",
+                                    *(["view_calibration"] if calibrated else [])])
     names = table.column("channel").to_pylist()
     n = len(names)
     _, detector = _list_parts(table.column("view_detector"), "view_detector", path)
     _, weights = _list_parts(table.column("view_weights"), "view_weights", path)
+    calibration = _list_parts(table.column("view_calibration"), "view_calibration", path)[1] if calibrated \
+        else np.zeros(2 * CELLS * n, np.int64)
     if len(detector) != 3 * n or len(weights) != 3 * max_context * n or None in names:
         raise LibraryFormatError(f"{path}: the view table does not match max_length {max_context}")
+    if len(calibration) != 2 * CELLS * n or np.any(calibration < 0) \
+            or np.any(calibration[0::2] > calibration[1::2]):
+        raise LibraryFormatError(f"{path}: the view table's calibration counts are not hits and trials "
+                                 f"of {CELLS} cells per view: re-create the library")
     epoch = _numbers(table.column("view_epoch"), "view_epoch", path).astype(np.int32)
     return names, Mixer(weights.astype(np.float64).reshape(n, max_context, 3),
-                        detector.astype(np.float64).reshape(n, 3), epoch)
+                        detector.astype(np.float64).reshape(n, 3), epoch,
+                        calibration.astype(np.int64).reshape(n, CELLS, 2))
 
 
 def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
@@ -519,7 +536,7 @@ def load_library(path: str | os.PathLike) -> LoadedLibrary:
         literal = params.get("scoring") == "literal"
         arrays = _read_patterns(parquet, groups["pattern"], literal, len(tokens), path)
         library = (_literal(arrays, tokens, facts, params, path) if literal else
-                   _occurrence(parquet, groups, arrays, tokens, vocabulary, facts, params, path))
+                   _occurrence(parquet, groups, arrays, tokens, vocabulary, facts, params, doc["version"], path))
         library.forgotten = int(facts["forgotten"])
         spec = Spec.from_dict(doc["spec"], str(path)) if doc["spec"] is not None else None
     del arrays, parquet
@@ -538,10 +555,10 @@ def _literal(arrays, tokens: TokenTable, facts: dict, params: dict, path: Path) 
 
 
 def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabulary, facts: dict,
-                params: dict, path: Path) -> PatternLibrary:
+                params: dict, version: int, path: Path) -> PatternLibrary:
     max_length, has_actions = int(params["max_length"]), bool(params["has_actions"])
     max_context = 2 * max_length if has_actions else max_length
-    names, mixer = _read_views(parquet, groups["view"], max_context, path)
+    names, mixer = _read_views(parquet, groups["view"], max_context, int(version), path)
     lengths = np.diff(arrays["pattern_offsets"])
     views = arrays["view"]
     if len(lengths) and (lengths.min() < 2 or lengths.max() > max_context + 1

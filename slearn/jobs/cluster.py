@@ -9,7 +9,7 @@ Ray initialised (a notebook, the tests) keeps its own instance.
 Tasks read logs by path: every node must see the logs at the same path (a shared
 filesystem: NFS, a cluster filesystem, a bucket mounted at the same place) and have the
 same slearn installed. What travels between tasks is plain data: paths, JSON-able dicts
-and library files' bytes (format 3 of :mod:`slearn.io.library_file`), never slearn objects.
+and library files' bytes (the format of :mod:`slearn.io.library_file`), never slearn objects.
 
 A task whose worker process died (killed, out of memory, a node lost) is run again by
 Ray, up to ``MAX_RETRIES`` times; tasks are pure functions of their inputs, so a retried

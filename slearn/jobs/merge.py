@@ -12,6 +12,9 @@ The scoring state depends on the order of predictions, so it follows a rule:
 
 * the expert weights and the change detector of a view are ``b``'s when ``b`` predicted
   anything in the view (they were trained on the latest data), else ``a``'s;
+* the detector's calibration counts (hits and trials per cell, over all time) add, as
+  they would in one run (the predictions behind them differ in ``b``, which started
+  from empty);
 * fresh counts: when ``b``'s detector raised an alarm in a view, the run's current epoch
   began inside ``b``, so the view's fresh counts are ``b``'s and its epoch is the sum of
   both; otherwise the epoch that was current at the end of ``a`` went on through ``b``,
@@ -214,23 +217,26 @@ def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable
 
 def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
                   view_map: np.ndarray) -> tuple[Mixer, np.ndarray]:
-    """The views' scoring state, and which views had an alarm in ``b``."""
+    """The views' scoring state, and which views had an alarm in ``b``: weights and test
+    of the later library where it trained them, alarms and calibration counts summed."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
-    weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
-    epoch = np.zeros(n, np.int32)
+    empty = new_mixer(n, k)
+    weights, detector, epoch, calibration = np.zeros((n, k, 3)), empty.detector, empty.epoch, empty.calibration
     alarmed = np.zeros(n, bool)
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
+        calibration[:na] = ma.calibration[:na]
     if mb is not None:
-        untrained = new_mixer(1, k).weight[0]
+        untrained = empty.weight[0]
         for i, j in enumerate(view_map.tolist()):
             if not np.array_equal(mb.weight[i], untrained):
                 weights[j], detector[j] = mb.weight[i], mb.detector[i]
             alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
-    return Mixer(weights, detector, epoch), alarmed
+            calibration[j] += mb.calibration[i]
+    return Mixer(weights, detector, epoch, calibration), alarmed
 
 
 def _merged_literal(a: LiteralLibrary, b: LiteralLibrary, tokens: TokenTable,

@@ -13,9 +13,10 @@ its count and recency, their order, the clock, the spec, parameters and provenan
 task hashes its own log). What cannot: the scoring state (expert weights, change
 detectors, epochs and fresh counts) is trained by predicting each step with the library
 as it stood, which a task that starts from empty does not have; it follows the rule of
-:func:`~slearn.jobs.merge.merge_libraries` (the latest log's weights; an alarm in a later log
-starts the epoch). ``bench/bench_ray.py`` measures the accuracy this costs on held-out
-logs. A single log gives exactly the bytes of one process.
+:func:`~slearn.jobs.merge.merge_libraries` (the latest log's weights, the detectors'
+calibration counts added; an alarm in a later log starts the epoch).
+``bench/bench_ray.py`` measures the accuracy this costs on held-out logs. A single
+log gives exactly the bytes of one process.
 
 Refused, because they would change the library silently: ``--max-patterns`` (one
 process forgets along the way, a merge only at the end) and ``--scoring literal`` (its

@@ -1,0 +1,96 @@
+"""The change detector: alarms at changes of dynamics, not on streams that are merely
+random (its expected miss rates calibrated per cell, :mod:`slearn.core.mixer`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slearn import SequenceModel
+from slearn.core.mixer import CELLS, HITS, OCTAVES, SEEN, calibration_cell
+from slearn.io.library_file import load_library
+from slearn.jobs.merge import merge_libraries
+
+
+def learned(items: list, chunk: int = 5000) -> SequenceModel:
+    model = SequenceModel()
+    for i in range(0, len(items), chunk):
+        model.learn(items[i:i + chunk])
+    return model
+
+
+def alarms(model: SequenceModel) -> int:
+    return int(model.library.mixer.epoch.sum())
+
+
+@pytest.mark.parametrize("faces", [4, 1000])
+def test_a_random_stream_raises_no_alarm(faces):
+    # PPM-C gives a context seen once 1/2 for its outcome; taken at face value, each miss
+    # of a die of 1,000 faces looked like a change (about 170 alarms in these 50,000 rolls)
+    rolls = np.random.default_rng(faces).integers(0, faces, 50_000).tolist()
+    assert alarms(learned(rolls)) <= 1
+
+
+def test_a_random_walk_over_many_states_raises_no_alarm():
+    rng = np.random.default_rng(7)
+    successors = rng.integers(0, 2000, (2000, 50))
+    state, walk = 0, []
+    for _ in range(50_000):
+        state = int(successors[state, rng.integers(0, 50)])
+        walk.append(state)
+    assert alarms(learned(walk)) <= 1
+
+
+def test_a_change_of_a_deterministic_cycle_is_caught_at_once():
+    before = list(range(10)) * 2000
+    after = [(3 * i) % 10 for i in range(10)] * 2000  # the same symbols, another order
+    model = learned(before)
+    assert alarms(model) == 0
+    model.learn(after[:30])
+    assert alarms(model) == 1
+    model.learn(after[30:])
+    assert alarms(model) == 1
+    assert model.predict(after[-5:]) == after[0]  # and the new order is what it predicts
+
+
+def test_a_change_among_noise_is_still_caught():
+    rng = np.random.default_rng(3)
+
+    def noisy(cycle, n):  # the cycle's next item 90 % of the time, else a random one
+        items = [cycle[i % len(cycle)] for i in range(n)]
+        return [int(rng.integers(0, 10)) if rng.random() < 0.1 else x for x in items]
+
+    model = learned(noisy(list(range(10)), 20_000))
+    assert alarms(model) <= 1
+    quiet = alarms(model)
+    model.learn(noisy([(3 * i) % 10 for i in range(10)], 300))
+    assert alarms(model) > quiet
+
+
+def test_calibration_cells_are_the_octaves_of_count_and_odds():
+    cell_of = calibration_cell.py_func  # a helper is called from compiled code only
+    assert cell_of(1, 1, 1) == 0 * OCTAVES + 1  # seen once: a share of 1/2, odds 2
+    assert cell_of(100, 100, 1) == 6 * OCTAVES + 6  # 100 of 100: odds 101
+    assert cell_of(1, 100, 50) == 6 * OCTAVES + 0  # a rare outcome: odds below 2
+    assert cell_of(1 << 40, 1 << 40, 1) == CELLS - 1  # both octaves saturate
+    for c, total, distinct in [(1, 1, 1), (3, 7, 2), (50, 100, 3), (99, 100, 2), (7, 1000, 40)]:
+        cell = cell_of(c, total, distinct)
+        count_octave, odds_octave = divmod(cell, OCTAVES)
+        assert count_octave == min(int(np.floor(np.log2(total))), OCTAVES - 1)
+        odds = (total + distinct) / (total + distinct - c)
+        assert odds_octave == min(int(np.floor(np.log2(odds) + 1e-12)), OCTAVES - 1)
+
+
+def test_calibration_counts_every_test_and_merges_by_adding(tmp_path):
+    rng = np.random.default_rng(11)
+    a = learned(rng.integers(0, 6, 3000).tolist())
+    b = learned(rng.integers(0, 6, 2000).tolist())
+    cal = a.library.mixer.calibration
+    assert cal.shape == (1, CELLS, 2)
+    assert 0 < cal[0, :, SEEN].sum() < 3000 and np.all(cal[..., HITS] <= cal[..., SEEN])
+    hit_rate = cal[0, :, HITS].sum() / cal[0, :, SEEN].sum()
+    assert abs(hit_rate - 1 / 6) < 0.05  # the trusted expert of a fair die is right 1 time in 6
+    a.save(tmp_path / "a.parquet")
+    b.save(tmp_path / "b.parquet")
+    merged = merge_libraries(load_library(tmp_path / "a.parquet"), load_library(tmp_path / "b.parquet"))
+    np.testing.assert_array_equal(merged.library.mixer.calibration, cal + b.library.mixer.calibration)
