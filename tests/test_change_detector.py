@@ -3,11 +3,12 @@ random (its expected miss rates calibrated per cell, :mod:`slearn.core.mixer`)."
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
 from slearn import SequenceModel
-from slearn.core.mixer import CELLS, HITS, OCTAVES, SEEN, calibration_cell
+from slearn.core.mixer import CELLS, HITS, OCTAVES, SEEN, calibration_cell, detect, new_mixer
 from slearn.io.library_file import load_library
 from slearn.jobs.merge import merge_libraries
 
@@ -94,3 +95,24 @@ def test_calibration_counts_every_test_and_merges_by_adding(tmp_path):
     b.save(tmp_path / "b.parquet")
     merged = merge_libraries(load_library(tmp_path / "a.parquet"), load_library(tmp_path / "b.parquet"))
     np.testing.assert_array_equal(merged.library.mixer.calibration, cal + b.library.mixer.calibration)
+
+
+
+@numba.njit
+def first_alarm(mixer_weight, detector, calibration, misses, c, total, distinct):
+    """Feed ``misses`` misses of one share to view 0's test; the index of the first alarm."""
+    for i in range(misses):
+        if detect(mixer_weight, detector, calibration, 0, False, c, total, distinct):
+            return i
+    return -1
+
+
+def test_misses_of_a_well_seen_context_count_in_a_cell_never_used():
+    # a context seen 1,000 times that gave its outcome 990 times: its share speaks for the
+    # first predictions of a new cell, so a run of misses (a change) is caught in a few;
+    # had the cell's own few trials weighed as much, they would have taught the test to
+    # expect the misses (about 6 nats after 10 of them; the alarm is at 13.8)
+    mixer = new_mixer(1, 6)
+    assert 0 <= first_alarm(mixer.weight, mixer.detector, mixer.calibration, 10, 990, 1000, 2) <= 4
+    cell = calibration_cell.py_func(990, 1000, 2)
+    assert mixer.calibration[0, cell, HITS] == 0 and 1 <= mixer.calibration[0, cell, SEEN] <= 5
