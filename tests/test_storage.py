@@ -539,3 +539,30 @@ def test_wrong_parent_hints_that_undercount_nodes_still_rebuild_exactly():
     hinted = LiteralLibrary.from_export({**synthetic, "pattern_parent": hints}, TokenTable(), n + 1, 2)
     assert_same_library(plain, hinted)
     assert len(hinted) == n + 1 and hinted.export()["count"].tolist() == list(range(1, n + 2))
+
+
+@pytest.mark.parametrize("damage", ["more hits than trials", "negative", "cells missing"])
+def test_damaged_calibration_counts_are_refused_naming_the_file(tmp_path, damage):
+    library = learned(seed=2)
+    save(tmp_path / "lib.parquet", library)
+    assert load_library(tmp_path / "lib.parquet").library.mixer.calibration.sum() > 0
+
+    def corrupt(table):
+        column = table.column("view_calibration").to_pylist()
+        edited = []
+        for cells in column:
+            if cells is not None:
+                cells = list(cells)
+                if damage == "more hits than trials":
+                    cells[0] = cells[1] + 1
+                elif damage == "negative":
+                    cells[1] = -1
+                else:
+                    cells = cells[:-2]
+            edited.append(cells)
+        index = table.schema.get_field_index("view_calibration")
+        return table.set_column(index, table.schema.field(index), pa.array(edited, table.schema.field(index).type))
+
+    rewrite(tmp_path / "lib.parquet", tmp_path / "bad.parquet", corrupt)
+    with pytest.raises(LibraryFormatError, match=r"bad\.parquet: the view table's calibration counts"):
+        load_library(tmp_path / "bad.parquet")

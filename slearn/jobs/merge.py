@@ -39,7 +39,7 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import Mixer, new_mixer
+from slearn.core.mixer import CELLS, Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, SpecError
@@ -221,15 +221,15 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
     of the later library where it trained them, alarms and calibration counts summed."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
-    empty = new_mixer(n, k)
-    weights, detector, epoch, calibration = np.zeros((n, k, 3)), empty.detector, empty.epoch, empty.calibration
+    weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
+    epoch, calibration = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64)
     alarmed = np.zeros(n, bool)
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
         calibration[:na] = ma.calibration[:na]
     if mb is not None:
-        untrained = empty.weight[0]
+        untrained = new_mixer(1, k).weight[0]
         for i, j in enumerate(view_map.tolist()):
             if not np.array_equal(mb.weight[i], untrained):
                 weights[j], detector[j] = mb.weight[i], mb.detector[i]
