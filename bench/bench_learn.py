@@ -66,7 +66,7 @@ def load_c_learn(folder: Path, prefetch: bool = False):
                    check=True, capture_output=True)
     lib = ctypes.CDLL(str(library))
     lib.slearn_learn.restype = ctypes.c_int64
-    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 13 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
+    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 14 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
     return lib.slearn_learn
 
 
@@ -90,7 +90,8 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
                      float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]), mixer.PRIOR, mixer.OCTAVES)
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,
-        mix.calibration.ctypes.data, streams.recent.ctypes.data, streams.filled.ctypes.data, streams.held.ctypes.data,
+        mix.calibration.ctypes.data, mix.rounds.ctypes.data,
+        streams.recent.ctypes.data, streams.filled.ctypes.data, streams.held.ctypes.data,
         streams.root.ctypes.data, *(a.ctypes.data for a in arrays), ctypes.c_int64(len(codes)),
         ctypes.c_int64(0), ctypes.byref(params))
     return out

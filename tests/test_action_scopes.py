@@ -171,7 +171,7 @@ def test_scopes_are_saved_loaded_and_predict_the_same(tmp_path):
     for i in range(6, len(walk)):
         assert again.predict_step(walk[i - 6:i], walk[i][0]) == model.predict_step(walk[i - 6:i], walk[i][0])
     info = json.loads(pq.read_schema(tmp_path / "m.parquet").metadata[METADATA_KEY])
-    assert info["version"] == 4 and info["params"]["action_scopes"] == {f"p{j}": [f"c{j}"] for j in range(3)}
+    assert info["version"] == 5 and info["params"]["action_scopes"] == {f"p{j}": [f"c{j}"] for j in range(3)}
 
 
 def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
@@ -184,7 +184,8 @@ def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
         doc = json.loads(json.dumps(info))
         change(doc)
         source = pq.ParquetFile(tmp_path / "m.parquet")
-        kept = [c for c in table.column_names if doc["version"] >= 4 or c != "view_calibration"]  # since 4
+        since = {"view_calibration": 4, "view_rounds": 5}
+        kept = [c for c in table.column_names if doc["version"] >= since.get(c, 0)]
         schema = pa.schema([table.schema.field(c) for c in kept]).with_metadata({METADATA_KEY: json.dumps(doc)})
         with pq.ParquetWriter(tmp_path / name, schema) as out:
             for group in range(source.num_row_groups):
@@ -194,6 +195,7 @@ def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
     old = load_library(edited(lambda d: d.update(version=2), "v2.parquet"))
     assert old.format_version == 2 and old.library.action_scopes == {}
     assert not old.library.mixer.calibration.any()  # older files have none: it starts from none
+    assert old.library.mixer.rounds.tolist() == [old.library.clock] * len(old.library.view_names)  # their age
     bad = edited(lambda d: d["params"].update(action_scopes={"p0": ["p1"]}), "bad.parquet")
     with pytest.raises(LibraryFormatError, match="params.action_scopes.*'p1' has the role observation"):
         load_library(bad)

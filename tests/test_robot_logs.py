@@ -328,6 +328,9 @@ def test_pr2_joints_held_out_past_their_training_values_are_held_not_abstained(t
     assert len(casters) == 2 and all(c["markov_accuracy"] == 0 for c in casters)  # values never learned
     for channel in casters:
         assert channel["abstained"] == 0 and channel["accuracy"] == channel["persistence_accuracy"] > 0.99
+    # every channel at least the Markov baseline's figure (the laser tilt joint: 372 of 397, as
+    # Markov; 370 before the experts' weights aged, as its long contexts filled in)
+    assert all(c["accuracy"] >= c["markov_accuracy"] for c in doc["channels"])
 
 
 def write_ros2_log(path: Path, messages) -> Path:

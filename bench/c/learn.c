@@ -7,7 +7,8 @@
  * that did not report shows its last one again). Before an observation is appended, every
  * context of 1..K tokens just before it is looked up in a tree read backwards from the
  * view's root; the experts of slearn/core/mixer.py (frequent, recent and fresh outcome of each
- * context) are weighed by Hedge with sleeping experts and a spread bound, a Bernoulli
+ * context) are weighed by Hedge with sleeping experts and a spread bound (every log-weight
+ * halved when the view's rounds reach a power of two), a Bernoulli
  * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
  * PPM-C's estimate in its context, calibrated by the hits of its cell: the octaves of the
  * context's count and of the odds against a miss), and every context counts one more
@@ -123,8 +124,12 @@ static void credit(tree_t *t, int32_t e, int32_t node, int64_t clock) {
 
 /* --- the mixer (slearn/core/mixer.py) ---------------------------------------------------- */
 
-static void update(double *w, const int32_t *cand, int n, int K, int32_t truth,
+static void update(double *w, int64_t *rounds, const int32_t *cand, int n, int K, int32_t truth,
                    double beta, double floor_) {
+    if (n == 0) return;
+    int64_t t = ++*rounds;
+    if (t > 1 && (t & (t - 1)) == 0)  /* a power of two: every log-weight halves */
+        for (int i = 0; i < K * KINDS; i++) w[i] = sqrt(w[i]);
     double before = 0.0, after = 0.0;
     for (int k = 1; k <= n; k++)
         for (int kind = 0; kind < KINDS; kind++) {
@@ -208,7 +213,7 @@ typedef struct {
 } params_t;
 
 int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch, int64_t *calibration,
-                     int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
+                     int64_t *rounds, int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
                      const int32_t *action, const int64_t *offsets, const int32_t *view,
                      const int32_t *token, int64_t n_steps, int64_t clock, const params_t *p) {
     int K = p->K;
@@ -262,7 +267,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 }
                 for (int k = 1; k <= n; k++) FETCH(&t->entry_slots[home(nodes[k], x, t->entry_slot_count)]);
                 double *w = &weights[(int64_t)v * K * KINDS];
-                update(w, cand, m, K, x, p->beta, p->floor_);
+                update(w, &rounds[v], cand, m, K, x, p->beta, p->floor_);
                 int kt = trusted_length(w, cand, m, ep);
                 if (kt > 0) {
                     int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];

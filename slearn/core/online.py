@@ -120,7 +120,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
     fresh_total, fresh_outcomes = tree.fresh_total, tree.fresh_outcomes
-    weights, detector, epoch, calibration = mixer.weight, mixer.detector, mixer.epoch, mixer.calibration
+    weights, detector, epoch, calibration, rounds = mixer
     recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
@@ -188,7 +188,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                 if learn:
                     if fetch_entry:
                         fetch_entry_slots(entry_slots, nodes, n, x)
-                    update(weights, v, cand, m, x)
+                    update(weights, rounds, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
                     if kt > 0:
                         nd = nodes[kt]

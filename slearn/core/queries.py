@@ -198,7 +198,7 @@ def predict_queries(table):
                 vector(table, t + 12, i64), vector(table, t + 13, i32), vector(table, t + 14, i32),
                 vector(table, t + 15, i64), vector(table, t + 16, i32), vector(table, t + 17, i32))
     mixer = Mixer(cube(table, m, f64), matrix(table, m + 1, f64), vector(table, m + 2, i32),
-                  cube(table, m + 3, i64))
+                  cube(table, m + 3, i64), vector(table, m + 4, i64))
     scratch = ViewState(matrix(table, sc, i32), vector(table, sc + 1, i64), vector(table, sc + 2, i32),
                         vector(table, sc + 3, i32), vector(table, sc + 4, i32))
     out = Reports(vector(table, o, i32), vector(table, o + 1, i32), vector(table, o + 2, np.int8),

@@ -1,10 +1,11 @@
 """Pattern libraries on disk: one Parquet file holds a library, its vocabulary and its spec.
 
-Layout (format ``slearn-library``, version 4; version 3 files, which have no
-``view_calibration``, and version 2 files, which also have no action scopes, are read
-too, their detectors' calibration starting from none). Four tables share one schema; a row belongs to the table named in
-its ``table`` column, each table has its own row groups (written in this order) and the
-columns of the other tables are null::
+Layout (format ``slearn-library``, version 5; version 4 files, which have no
+``view_rounds``, version 3 files, which also have no ``view_calibration``, and version 2
+files, which also have no action scopes, are read too: their views' rounds taken as the
+library's clock, their detectors' calibration starting from none). Four tables share one
+schema; a row belongs to the table named in its ``table`` column, each table has its own
+row groups (written in this order) and the columns of the other tables are null::
 
     column          type           table       holds
     table           string         all         "vocabulary" | "token" | "view" | "pattern"
@@ -21,6 +22,7 @@ columns of the other tables are null::
     view_detector   list<float64>  view        its test: cusum, misses, trials
     view_weights    list<float64>  view        expert weights over the leader, (context length, kind)
     view_calibration list<int64>   view        the test's hits and trials per calibration cell
+    view_rounds     int64          view        the view's weight updates (mixer rounds)
     view            int32          pattern     the view the pattern belongs to
     pattern         list<int32>    pattern     tokens: the context, oldest first, then the outcome
     parent          int32          pattern     literal libraries: row of the prefix, -1
@@ -86,6 +88,7 @@ SCHEMA = pa.schema([
     ("view_detector", _FLOAT64),
     ("view_weights", _FLOAT64),
     ("view_calibration", _INT64),
+    ("view_rounds", pa.int64()),
     ("view", pa.int32()),
     ("pattern", _INT32),
     ("parent", pa.int32()),
@@ -94,7 +97,7 @@ SCHEMA = pa.schema([
     ("fresh", pa.int64()),
 ])
 _INT64_RANGE = (-(1 << 63), (1 << 63) - 1)
-_SINCE = {"view_calibration": 4}  # columns added after version 2, by the version that added them
+_SINCE = {"view_calibration": 4, "view_rounds": 5}  # columns added after version 2, by the version that added them
 
 
 @dataclass
@@ -279,6 +282,7 @@ def _view_table(library) -> pa.Table:
                                     Path("<views>"), _FLOAT64),
         "view_calibration": _list_array(np.arange(n + 1) * 2 * CELLS, mixer.calibration[:n].ravel(),
                                         Path("<views>"), _INT64),
+        "view_rounds": pa.array(mixer.rounds[:n], pa.int64()),
     })
 
 
@@ -480,10 +484,11 @@ def _read_tokens(parquet: pq.ParquetFile, groups: list[int], n_symbols: int, pat
 
 
 def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, version: int,
-                path: Path) -> tuple[list[str], Mixer]:
-    calibrated = version >= _SINCE["view_calibration"]
+                clock: int, path: Path) -> tuple[list[str], Mixer]:
+    calibrated, counted = version >= _SINCE["view_calibration"], version >= _SINCE["view_rounds"]
     table = _read(parquet, groups, ["channel", "view_epoch", "view_detector", "view_weights",
-                                    *(["view_calibration"] if calibrated else [])])
+                                    *(["view_calibration"] if calibrated else []),
+                                    *(["view_rounds"] if counted else [])])
     names = table.column("channel").to_pylist()
     n = len(names)
     _, detector = _list_parts(table.column("view_detector"), "view_detector", path)
@@ -497,9 +502,13 @@ def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, ve
         raise LibraryFormatError(f"{path}: the view table's calibration counts are not hits and trials "
                                  f"of {CELLS} cells per view: re-create the library")
     epoch = _numbers(table.column("view_epoch"), "view_epoch", path).astype(np.int32)
+    rounds = _numbers(table.column("view_rounds"), "view_rounds", path).astype(np.int64) if counted \
+        else np.full(n, max(clock, 0), np.int64)  # (about one prediction per step: the older weights' age)
+    if np.any(rounds < 0):
+        raise LibraryFormatError(f"{path}: a view's rounds are negative: re-create the library")
     return names, Mixer(weights.astype(np.float64).reshape(n, max_context, 3),
                         detector.astype(np.float64).reshape(n, 3), epoch,
-                        calibration.astype(np.int64).reshape(n, CELLS, 2))
+                        calibration.astype(np.int64).reshape(n, CELLS, 2), rounds)
 
 
 def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
@@ -558,7 +567,7 @@ def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabul
                 params: dict, version: int, path: Path) -> PatternLibrary:
     max_length, has_actions = int(params["max_length"]), bool(params["has_actions"])
     max_context = 2 * max_length if has_actions else max_length
-    names, mixer = _read_views(parquet, groups["view"], max_context, int(version), path)
+    names, mixer = _read_views(parquet, groups["view"], max_context, int(version), int(facts["clock"]), path)
     lengths = np.diff(arrays["pattern_offsets"])
     views = arrays["view"]
     if len(lengths) and (lengths.min() < 2 or lengths.max() > max_context + 1

@@ -10,8 +10,9 @@ those of one run (a property test checks it against the run).
 
 The scoring state depends on the order of predictions, so it follows a rule:
 
-* the expert weights and the change detector of a view are ``b``'s when ``b`` predicted
-  anything in the view (they were trained on the latest data), else ``a``'s;
+* the expert weights, the change detector and the rounds of a view (the weights' age,
+  :mod:`slearn.core.mixer`) are ``b``'s when ``b`` predicted anything in the view (they
+  were trained on the latest data), else ``a``'s;
 * the detector's calibration counts (hits and trials per cell, over all time) add, as
   they would in one run (the predictions behind them differ in ``b``, which started
   from empty);
@@ -222,21 +223,21 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
     weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
-    epoch, calibration = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64)
+    epoch, calibration, rounds = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64), np.zeros(n, np.int64)
     alarmed = np.zeros(n, bool)
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
-        calibration[:na] = ma.calibration[:na]
+        calibration[:na], rounds[:na] = ma.calibration[:na], ma.rounds[:na]
     if mb is not None:
         untrained = new_mixer(1, k).weight[0]
         for i, j in enumerate(view_map.tolist()):
             if not np.array_equal(mb.weight[i], untrained):
-                weights[j], detector[j] = mb.weight[i], mb.detector[i]
+                weights[j], detector[j], rounds[j] = mb.weight[i], mb.detector[i], mb.rounds[i]
             alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
             calibration[j] += mb.calibration[i]
-    return Mixer(weights, detector, epoch, calibration), alarmed
+    return Mixer(weights, detector, epoch, calibration, rounds), alarmed
 
 
 def _merged_literal(a: LiteralLibrary, b: LiteralLibrary, tokens: TokenTable,
