@@ -91,6 +91,19 @@ def test_rounds_are_saved_and_a_merge_takes_them_with_the_weights(tmp_path):
     assert np.array_equal(merged.rounds, lb.library.mixer.rounds)  # the age of the weights taken
 
 
+def test_a_merge_takes_the_weights_of_a_view_the_later_library_predicted_in(tmp_path):
+    # b predicted once, and was right: its weights are still the untrained ones, yet they
+    # are the latest (a merge that compared the weights with untrained ones kept a's)
+    a, b = stream_model(4), SequenceModel()
+    b.learn([0, 0, 0])
+    assert b.library.mixer.rounds.tolist() == [1]
+    a.save(tmp_path / "a.parquet")
+    b.save(tmp_path / "b.parquet")
+    merged = merge_libraries(load_library(tmp_path / "a.parquet"), load_library(tmp_path / "b.parquet"))
+    assert merged.library.mixer.rounds.tolist() == [1]
+    assert np.array_equal(merged.library.mixer.weight, b.library.mixer.weight)
+
+
 def test_negative_rounds_are_refused_naming_the_file(tmp_path):
     stream_model(3).save(tmp_path / "lib.parquet")
     source = pq.ParquetFile(tmp_path / "lib.parquet")

@@ -3,7 +3,8 @@
 Layout (format ``slearn-library``, version 5; version 4 files, which have no
 ``view_rounds``, version 3 files, which also have no ``view_calibration``, and version 2
 files, which also have no action scopes, are read too: their views' rounds taken as the
-library's clock, their detectors' calibration starting from none). Four tables share one
+library's clock where the weights were trained, their detectors' calibration starting
+from none). Four tables share one
 schema; a row belongs to the table named in its ``table`` column, each table has its own
 row groups (written in this order) and the columns of the other tables are null::
 
@@ -59,7 +60,7 @@ import pyarrow.parquet as pq
 
 from slearn.core.library import PatternLibrary, check_scopes
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import CELLS, Mixer
+from slearn.core.mixer import CELLS, Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import STORABLE, Vocabulary, storable
 from slearn.errors import InputError, LibraryFormatError, ParameterError
@@ -502,12 +503,15 @@ def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, ve
         raise LibraryFormatError(f"{path}: the view table's calibration counts are not hits and trials "
                                  f"of {CELLS} cells per view: re-create the library")
     epoch = _numbers(table.column("view_epoch"), "view_epoch", path).astype(np.int32)
-    rounds = _numbers(table.column("view_rounds"), "view_rounds", path).astype(np.int64) if counted \
-        else np.full(n, max(clock, 0), np.int64)  # (about one prediction per step: the older weights' age)
+    weights = weights.astype(np.float64).reshape(n, max_context, 3)
+    if counted:
+        rounds = _numbers(table.column("view_rounds"), "view_rounds", path).astype(np.int64)
+    else:  # about one prediction per step where the weights were trained: their age
+        trained = np.any(weights != new_mixer(1, max_context).weight, axis=(1, 2))
+        rounds = np.where(trained, max(clock, 0), 0).astype(np.int64)
     if np.any(rounds < 0):
         raise LibraryFormatError(f"{path}: a view's rounds are negative: re-create the library")
-    return names, Mixer(weights.astype(np.float64).reshape(n, max_context, 3),
-                        detector.astype(np.float64).reshape(n, 3), epoch,
+    return names, Mixer(weights, detector.astype(np.float64).reshape(n, 3), epoch,
                         calibration.astype(np.int64).reshape(n, CELLS, 2), rounds)
 
 

@@ -40,7 +40,7 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import CELLS, Mixer, new_mixer
+from slearn.core.mixer import CELLS, Mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, SpecError
@@ -230,9 +230,8 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
         calibration[:na], rounds[:na] = ma.calibration[:na], ma.rounds[:na]
     if mb is not None:
-        untrained = new_mixer(1, k).weight[0]
         for i, j in enumerate(view_map.tolist()):
-            if not np.array_equal(mb.weight[i], untrained):
+            if mb.rounds[i] > 0:  # b predicted in the view: its weights are the latest
                 weights[j], detector[j], rounds[j] = mb.weight[i], mb.detector[i], mb.rounds[i]
             alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
