@@ -116,3 +116,45 @@ def test_misses_of_a_well_seen_context_count_in_a_cell_never_used():
     assert 0 <= first_alarm(mixer.weight, mixer.detector, mixer.calibration, 10, 990, 1000, 2) <= 4
     cell = calibration_cell.py_func(990, 1000, 2)
     assert mixer.calibration[0, cell, HITS] == 0 and 1 <= mixer.calibration[0, cell, SEEN] <= 5
+
+
+def test_a_new_epoch_counts_the_reports_since_the_change_it_dates():
+    # The test alarms some reports after a change; Page's CUSUM dates the change where its
+    # statistic was last zero, and the reports in between already showed the new
+    # dynamics. They count as fresh in the new epoch, as an empty library started at the
+    # change would count them: every occurrence of the item that only follows the change
+    # is fresh. (Counting from the alarm left out the first few.)
+    before = [0, 1] * 3000
+    after = [0, 2] * 40  # 0 is now followed by 2, never seen before
+    model = SequenceModel()
+    model.learn(before + after)
+    assert alarms(model) == 1
+    data = model.library.export()
+    ends = data["pattern_tokens"][data["pattern_offsets"][1:] - 1]
+    new_outcome = ends[-1]  # the last pattern first seen: one ending in the new item
+    mine = ends == new_outcome
+    assert mine.sum() > 0
+    np.testing.assert_array_equal(data["fresh"][mine], data["count"][mine])
+    assert np.all(data["fresh"] <= data["count"])
+
+
+def test_counting_again_stays_within_an_episode_and_forgetting():
+    # The reports kept for counting again belong to the current episode, and forgetting
+    # renumbers the tree's nodes: neither may carry them over. Here the change begins at
+    # the end of one episode (one miss: no alarm yet) and alarms at the first report of
+    # the next, so that first occurrence of 0 -> 2 stays out of the new epoch.
+    model = SequenceModel()
+    model.learn([0, 1] * 3000 + [0, 2])
+    assert alarms(model) == 0
+    model.learn([0, 2] * 40)
+    assert alarms(model) == 1
+    data = model.library.export()
+    ends = data["pattern_tokens"][data["pattern_offsets"][1:] - 1]
+    after_one = (np.diff(data["pattern_offsets"]) == 2) & (ends == ends[-1])  # 0 -> 2
+    assert after_one.sum() == 1
+    assert data["count"][after_one][0] == 41 and data["fresh"][after_one][0] == 40
+    assert np.all(data["fresh"] <= data["count"])
+    small = SequenceModel(max_patterns=64)  # forgets many times within one episode
+    small.learn(np.random.default_rng(0).integers(0, 50, 4000).tolist() + [0, 2] * 200)
+    data = small.library.export()
+    assert np.all(data["fresh"] <= data["count"])

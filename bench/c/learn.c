@@ -28,6 +28,7 @@
  * Build: cc -O2 -ffp-contract=off -shared -fPIC -o liblearn.so learn.c -lm [-DPREFETCH]
  */
 #include <math.h>
+#include <stdlib.h>
 #include <stdint.h>
 
 #ifdef PREFETCH
@@ -120,6 +121,38 @@ static void credit(tree_t *t, int32_t e, int32_t node, int64_t clock) {
     t->newest[node] = e;
     b = t->fresh_best[node];
     if (b == -1 || t->fresh[e] >= t->fresh[b]) t->fresh_best[node] = e;
+}
+
+static int32_t find_entry(const tree_t *t, int32_t node, int32_t out) {
+    int64_t s = home(node, out, t->entry_slot_count);
+    for (;;) {
+        int32_t r = t->entry_slots[s];
+        if (r == EMPTY) return -1;
+        if (t->owner[r] == node && t->outcome[r] == out) return r;
+        if (++s == t->entry_slot_count) s = 0;
+    }
+}
+
+/* The reports since the change the test dates, counted into the new epoch (online.recount). */
+#define PAST 256
+static void recount(tree_t *t, const int32_t *past_node, const int32_t *past_outcome, int64_t filled,
+                    int64_t *since, int32_t ep) {
+    int64_t n = *since < filled ? *since : filled;
+    if (n > PAST) n = PAST;
+    for (int64_t i = filled - n; i < filled; i++) {
+        int32_t nd = past_node[i % PAST], x = past_outcome[i % PAST];
+        while (t->parent[nd] >= 0) {
+            refresh(t, nd, ep);
+            int32_t e = find_entry(t, nd, x);
+            if (e >= 0) {
+                t->fresh[e] += 1;
+                int32_t b = t->fresh_best[nd];
+                if (b == -1 || t->fresh[e] >= t->fresh[b]) t->fresh_best[nd] = e;
+            }
+            nd = t->parent[nd];
+        }
+    }
+    *since = 0;
 }
 
 /* --- the mixer (slearn/core/mixer.py) ---------------------------------------------------- */
@@ -223,6 +256,11 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
     int32_t nodes[256];
     uint64_t hashes[256];
     int32_t cand[257 * KINDS];
+    /* The episode's latest reports per view (online.Past): this call is one episode. */
+    int32_t *past_node = calloc((size_t)p->n_views * PAST, sizeof(int32_t));
+    int32_t *past_outcome = calloc((size_t)p->n_views * PAST, sizeof(int32_t));
+    int64_t *past_filled = calloc((size_t)p->n_views, sizeof(int64_t));
+    int64_t *since = calloc((size_t)p->n_views, sizeof(int64_t));
     for (int64_t step = 0; step < n_steps; step++) {
         int32_t a = action[step];
         int push_action = p->has_actions && (step > 0 || a != p->empty_action);
@@ -268,16 +306,23 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 for (int k = 1; k <= n; k++) FETCH(&t->entry_slots[home(nodes[k], x, t->entry_slot_count)]);
                 double *w = &weights[(int64_t)v * K * KINDS];
                 update(w, &rounds[v], cand, m, K, x, p->beta, p->floor_);
-                int kt = trusted_length(w, cand, m, ep);
+                int kt = trusted_length(w, cand, m, ep), alarm = 0;
                 if (kt > 0) {
                     int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];
                     const int64_t *weight = ep > 0 ? t->fresh : t->count;
                     int64_t total, distinct;
                     weight_sums(t, weight, nd, &total, &distinct);
-                    if (detect(w, &detector[v * 3], &calibration[(int64_t)v * 2 * p->octaves * p->octaves], K,
-                               t->outcome[b] == x, weight[b], total, distinct, p->threshold, p->fresh_tie,
-                               p->prior, p->octaves))
-                        epoch[v] += 1;
+                    alarm = detect(w, &detector[v * 3], &calibration[(int64_t)v * 2 * p->octaves * p->octaves], K,
+                                   t->outcome[b] == x, weight[b], total, distinct, p->threshold, p->fresh_tie,
+                                   p->prior, p->octaves);
+                }
+                if (alarm) {
+                    epoch[v] += 1;
+                    recount(t, &past_node[v * PAST], &past_outcome[v * PAST], past_filled[v], &since[v], epoch[v]);
+                } else if (detector[v * 3] == 0.0) {
+                    since[v] = 0;
+                } else {
+                    since[v]++;
                 }
                 ep = epoch[v];
 #ifdef PREFETCH
@@ -294,6 +339,11 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                     refresh(t, nd, ep);
                     credit(t, entry_or_add(t, nd, x), nd, clock);
                 }
+                if (n > 0) {
+                    past_node[v * PAST + past_filled[v] % PAST] = nodes[n];
+                    past_outcome[v * PAST + past_filled[v] % PAST] = x;
+                    past_filled[v]++;
+                }
             }
             recent[v * W + (filled[v] & M)] = x;
             filled[v]++;
@@ -309,5 +359,6 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
         }
         clock++;
     }
+    free(past_node); free(past_outcome); free(past_filled); free(since);
     return clock;
 }

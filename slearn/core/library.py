@@ -35,7 +35,7 @@ from slearn.core._jit import kernel
 from slearn.core.context_tree import Tree
 from slearn.core.hashtable import rebuild
 from slearn.core.mixer import Mixer, new_mixer, with_views
-from slearn.core.online import Reports, Run, new_reports, run_codes
+from slearn.core.online import Past, Reports, Run, new_past, new_reports, run_codes
 from slearn.core.stream import Episode
 from slearn.core.tokens import ACTION, OBSERVATION, TokenTable
 from slearn.core.views import NO_VIEW, StepCodes, ViewState
@@ -105,6 +105,7 @@ class PatternLibrary:
         self._has_actions = has_actions
         self.mixer: Mixer | None = None
         self.streams: ViewState | None = None
+        self.past: Past | None = None
         self._view_of_symbol = np.zeros(0, np.int32)
 
     # --- shape ------------------------------------------------------------------------
@@ -210,6 +211,11 @@ class PatternLibrary:
                 self.streams.recent[:have] = old.recent
                 self.streams.filled[:have] = old.filled
                 self.streams.held[:have] = old.held
+        if self.past is None or len(self.past.filled) < n:
+            old_past, self.past = self.past, new_past(n)
+            if old_past is not None:
+                for mine, theirs in zip(self.past, old_past):
+                    mine[:len(theirs)] = theirs
 
     # --- learning and predicting ------------------------------------------------------
     def encode(self, episode: Episode, intern: bool = True,
@@ -262,13 +268,17 @@ class PatternLibrary:
         if self._has_actions is None:
             raise ParameterError("encode an episode with this library before running it")
         state = cast(ViewState, self.streams if streams is None else streams)  # prepared above
+        # The reports kept for a new epoch belong to the library's own streams.
+        past = cast(Past, self.past) if streams is None else new_past(len(state.filled))
         if new_episode:
             views.restart(state)
+            past.filled[:] = 0
+            past.since[:] = 0
         run = Run(self.has_actions, self.empty_action, self.empty_observation,
                   self._entry_bound(), learn, record, baselines, new_episode, self.factored)
         step = 0
         while step < len(codes):
-            step = run_codes(self.tree, self.mixer, state, codes.action, codes.scoped, codes.offsets, codes.view,
+            step = run_codes(self.tree, self.mixer, state, past, codes.action, codes.scoped, codes.offsets, codes.view,
                              codes.token, step, self.clock_array, run, out)
             if step < len(codes):
                 self._make_room(int(codes.offsets[step + 1] - codes.offsets[step]))
@@ -300,6 +310,8 @@ class PatternLibrary:
         alive = np.ones(n_entries, bool)
         alive[order[: n_entries - keep]] = False
         self.forgotten += n_entries - keep
+        if self.past is not None:
+            self.past.filled[:] = 0  # its nodes are renumbered
         self.tree = _compacted(tree, alive, depth)
 
     # --- export -----------------------------------------------------------------------
@@ -376,9 +388,11 @@ class PatternLibrary:
                      int(tree.size[0]))
 
     def nbytes(self) -> int:
-        """Bytes held by the library's arrays (tree, weights, streams; not the tokens)."""
+        """Bytes held by the library's arrays (tree, weights, streams, the reports kept for
+        a new epoch; not the tokens)."""
         extra = 0 if self.mixer is None else sum(a.nbytes for a in self.mixer)
         extra += 0 if self.streams is None else sum(a.nbytes for a in self.streams)
+        extra += 0 if self.past is None else sum(a.nbytes for a in self.past)
         return context_tree.nbytes(self.tree) + extra
 
 

@@ -52,7 +52,12 @@ context seen once weighs three predictions, so the cells of a random stream corr
 after a few dozen; a context seen a thousand times keeps its share until its cell has
 seen thousands of predictions, so the misses just after a change, which land in the
 cell too, do not teach the test to expect them. An alarm opens a new epoch:
-fresh counts restart from zero (:mod:`slearn.core.context_tree`), and the ``FRESH`` experts
+fresh counts restart from zero (:mod:`slearn.core.context_tree`), dated from the change the
+test estimates, not from the alarm: the reports since its statistic was last zero (Page's
+estimate of where the change began) count again as fresh (:class:`slearn.core.online.Past`),
+as an empty library started at the change would have counted them (on ``reversal+error``
+the thousand trials after the switch went from 64.9 to 65.7 %, an empty library started at
+the switch scores 66.0; ``bench/bench_variants.py``). The ``FRESH`` experts
 start just below the weights of the frequency experts of the same length (or keep their
 own, if higher), so they speak once they are better: after the first prediction where
 the all-time counts are wrong and the fresh ones right. A false alarm costs little,

@@ -25,6 +25,7 @@ import numpy as np
 from slearn.core._jit import helper, kernel
 from slearn.core.context_tree import (
     FETCH_SLOTS,
+    SATURATED,
     child,
     child_or_add,
     credit,
@@ -39,7 +40,8 @@ from slearn.core.context_tree import (
     root_path,
     weight_sums,
 )
-from slearn.core.mixer import FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
+from slearn.core.hashtable import EMPTY, probe
+from slearn.core.mixer import CUSUM, FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
 from slearn.core.views import NO_ACTIONS, NO_TOKEN
 
 
@@ -108,8 +110,38 @@ class Run(NamedTuple):
     hold: bool = False  # with no context found, predict the view's last observation again
 
 
+PAST = 256
+"""Reports a view keeps to count again into a new epoch (:class:`Past`)."""
+
+
+class Past(NamedTuple):
+    """Each view's latest learned reports in the current episode, so that an alarm can date
+    its epoch from the change it detected, not from the alarm.
+
+    Page's CUSUM estimates that a change began just after its statistic was last zero
+    (``since[v]``: the view's reports since then). An alarm comes some reports later; the
+    reports in between already showed the new dynamics, and an empty library started at the
+    change would have counted them. So the alarm counts them again as fresh counts of the
+    new epoch: ``node[v]`` (a ring of ``PAST``) holds the deepest context each report
+    learned (its shorter contexts are the node's ancestors), ``outcome[v]`` what it saw,
+    ``filled[v]`` how many were pushed. The ring restarts with each episode and after
+    forgetting (node numbers change), and at most ``PAST`` reports are counted again.
+    """
+
+    node: np.ndarray     # int32 (views, PAST)
+    outcome: np.ndarray  # int32 (views, PAST)
+    filled: np.ndarray   # int64 (views,)
+    since: np.ndarray    # int64 (views,)
+
+
+def new_past(views: int) -> Past:
+    """No reports yet."""
+    return Past(np.zeros((views, PAST), np.int32), np.zeros((views, PAST), np.int32),
+                np.zeros(views, np.int64), np.zeros(views, np.int64))
+
+
 @kernel
-def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, clock, run, out):
+def run_codes(tree, mixer, views, past, action, scoped, offsets, view, token, step, clock, run, out):
     """Run steps ``step..`` of an encoded episode; return the step it stopped before.
 
     ``clock`` is ``int64[1]``, advanced by one per learned step; ``scoped`` holds the
@@ -122,6 +154,7 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
     fresh_total, fresh_outcomes = tree.fresh_total, tree.fresh_outcomes
     weights, detector, epoch, calibration, rounds = mixer
     recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
+    past_node, past_outcome, past_filled, since = past.node, past.outcome, past.filled, past.since
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
     n_views = len(filled)
@@ -190,12 +223,20 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                         fetch_entry_slots(entry_slots, nodes, n, x)
                     update(weights, rounds, v, cand, m, x)
                     kt = trusted_length(weights, v, cand, m, ep)
+                    alarm = False
                     if kt > 0:
                         nd = nodes[kt]
                         b = fresh_best[nd] if ep > 0 else best[nd]  # fresh counts are all-time in epoch 0
                         total, distinct = fresh_sums(first, nxt, fresh, fresh_total, fresh_outcomes, nd)
-                        if detect(weights, detector, calibration, v, outcome[b] == x, fresh[b], total, distinct):
-                            epoch[v] += 1
+                        alarm = detect(weights, detector, calibration, v, outcome[b] == x, fresh[b], total, distinct)
+                    if alarm:
+                        epoch[v] += 1
+                        recount(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, parent,
+                                entry_slots, owner, outcome, past_node, past_outcome, past_filled, since, v, epoch[v])
+                    elif detector[v, CUSUM] == 0.0:
+                        since[v] = 0
+                    else:
+                        since[v] += 1
                     ep = epoch[v]
                     if fetch_entry:
                         fetch_entries(entry_slots, owner, outcome, count, last_seen, fresh, nodes, n, x)
@@ -205,6 +246,10 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
                         e = entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size, nd, x)
                         credit(count, last_seen, fresh, best, newest, fresh_best, fresh_total, fresh_outcomes, e, nd,
                                clock[0])
+                    if n > 0:
+                        past_node[v, past_filled[v] % PAST] = nodes[n]
+                        past_outcome[v, past_filled[v] % PAST] = x
+                        past_filled[v] += 1
             recent[v, filled[v] & M] = x
             filled[v] += 1
             held[v] = x
@@ -214,6 +259,30 @@ def run_codes(tree, mixer, views, action, scoped, offsets, view, token, step, cl
             clock[0] += 1
         step += 1
     return step
+
+
+@helper
+def recount(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, parent, entry_slots, owner,
+            outcome, past_node, past_outcome, past_filled, since, v, ep):
+    """At an alarm of view ``v`` (its epoch now ``ep``): the reports since the change its test
+    dates (:class:`Past`), oldest first, counted as fresh counts of the new epoch."""
+    n = min(since[v], past_filled[v], PAST)
+    for i in range(past_filled[v] - n, past_filled[v]):
+        nd, x = past_node[v, i % PAST], past_outcome[v, i % PAST]
+        while parent[nd] >= 0:  # the report's contexts, longest first (the root is none)
+            refresh(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, nd, ep)
+            e = entry_slots[probe(entry_slots, owner, outcome, nd, x)]
+            if e != EMPTY:
+                fresh[e] += 1
+                if fresh[e] == 1:
+                    fresh_outcomes[nd] += 1
+                if fresh_total[nd] < SATURATED:
+                    fresh_total[nd] += 1
+                b = fresh_best[nd]
+                if b == -1 or fresh[e] >= fresh[b]:
+                    fresh_best[nd] = e
+            nd = parent[nd]
+    since[v] = 0
 
 
 @helper
