@@ -116,3 +116,20 @@ def test_negative_rounds_are_refused_naming_the_file(tmp_path):
                                              pa.array(column, pa.int64())))
     with pytest.raises(LibraryFormatError, match=r"bad\.parquet: a view's rounds are negative"):
         load_library(tmp_path / "bad.parquet")
+
+
+def test_a_missing_contexts_expert_answers_for_what_its_shorter_twin_says():
+    # Contexts 1..2 found, 3..6 missing: experts 3..6 back off to context 2 and say what it
+    # says. When it is wrong they lose as it does (a heavy long expert cannot lend its
+    # weight to a short twin without answering for it); a kind with no twin found sleeps.
+    mixer = new_mixer(1, 6)
+    w = mixer.weight
+    w[0, :, FREQUENT] = [0.2, 0.3, 1.0, 0.9, 0.8, 0.7]
+    cand = np.full((7, N_KINDS), -1, np.int32)
+    cand[1, FREQUENT], cand[2, FREQUENT] = 4, 5  # context 2 says 5, context 1 says 4
+    before = w.copy()
+    rounds_of_updates(w, mixer.rounds, cand, 2, 4, 1)  # the truth is 4
+    lost = np.log(w[0, :, FREQUENT] / before[0, :, FREQUENT])
+    assert lost[0] > lost[1] + 0.05  # context 1 was right, context 2 wrong
+    np.testing.assert_allclose(lost[1:], lost[1], atol=1e-12)  # 3..6 said what 2 said
+    assert not w[0, :, 2].any()  # no FRESH expert was awake: they stay asleep

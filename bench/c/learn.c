@@ -163,20 +163,28 @@ static void update(double *w, int64_t *rounds, const int32_t *cand, int n, int K
     int64_t t = ++*rounds;
     if (t > 1 && (t & (t - 1)) == 0)  /* a power of two: every log-weight halves */
         for (int i = 0; i < K * KINDS; i++) w[i] = sqrt(w[i]);
+    /* An expert whose context is missing says what its longest shorter twin found says. */
     double before = 0.0, after = 0.0;
-    for (int k = 1; k <= n; k++)
-        for (int kind = 0; kind < KINDS; kind++) {
-            if (cand[k * KINDS + kind] < 0) continue;
+    for (int kind = 0; kind < KINDS; kind++) {
+        int32_t said = -1;
+        for (int k = 1; k <= K; k++) {
+            if (k <= n && cand[k * KINDS + kind] >= 0) said = cand[k * KINDS + kind];
+            if (said < 0) continue;
             double *x = &w[(k - 1) * KINDS + kind];
             before += *x;
-            if (cand[k * KINDS + kind] != truth) *x *= beta;
+            if (said != truth) *x *= beta;
             after += *x;
         }
+    }
     if (after <= 0.0) return;
     double ratio = before / after;
-    for (int k = 1; k <= n; k++)
-        for (int kind = 0; kind < KINDS; kind++)
-            if (cand[k * KINDS + kind] >= 0) w[(k - 1) * KINDS + kind] *= ratio;
+    for (int kind = 0; kind < KINDS; kind++) {
+        int32_t said = -1;
+        for (int k = 1; k <= K; k++) {
+            if (k <= n && cand[k * KINDS + kind] >= 0) said = cand[k * KINDS + kind];
+            if (said >= 0) w[(k - 1) * KINDS + kind] *= ratio;
+        }
+    }
     double leader = 0.0;
     for (int i = 0; i < K * KINDS; i++) leader = w[i] > leader ? w[i] : leader;
     double scale = 1.0 / leader;
