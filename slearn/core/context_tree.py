@@ -295,15 +295,21 @@ def credit(count, last_seen, fresh, best, newest, fresh_best, fresh_total, fresh
     """Count one occurrence of entry ``e`` (of ``node``) at ``clock``."""
     count[e] += 1
     last_seen[e] = clock
+    b = best[node]
+    if b == -1 or count[e] >= count[b]:
+        best[node] = e
+    newest[node] = e
+    credit_fresh(fresh, fresh_best, fresh_total, fresh_outcomes, e, node)
+
+
+@helper
+def credit_fresh(fresh, fresh_best, fresh_total, fresh_outcomes, e, node):
+    """Count one occurrence of entry ``e`` (of ``node``) in the fresh counts alone."""
     fresh[e] += 1
     if fresh[e] == 1:
         fresh_outcomes[node] += 1
     if fresh_total[node] < SATURATED:
         fresh_total[node] += 1
-    b = best[node]
-    if b == -1 or count[e] >= count[b]:
-        best[node] = e
-    newest[node] = e
     b = fresh_best[node]
     if b == -1 or fresh[e] >= fresh[b]:
         fresh_best[node] = e

@@ -25,10 +25,10 @@ import numpy as np
 from slearn.core._jit import helper, kernel
 from slearn.core.context_tree import (
     FETCH_SLOTS,
-    SATURATED,
     child,
     child_or_add,
     credit,
+    credit_fresh,
     entry_or_add,
     fetch_entries,
     fetch_entry_slots,
@@ -273,14 +273,7 @@ def recount(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epo
             refresh(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, nd, ep)
             e = entry_slots[probe(entry_slots, owner, outcome, nd, x)]
             if e != EMPTY:
-                fresh[e] += 1
-                if fresh[e] == 1:
-                    fresh_outcomes[nd] += 1
-                if fresh_total[nd] < SATURATED:
-                    fresh_total[nd] += 1
-                b = fresh_best[nd]
-                if b == -1 or fresh[e] >= fresh[b]:
-                    fresh_best[nd] = e
+                credit_fresh(fresh, fresh_best, fresh_total, fresh_outcomes, e, nd)
             nd = parent[nd]
     since[v] = 0
 
