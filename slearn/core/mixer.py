@@ -200,6 +200,17 @@ def heaviest_beyond(w, beyond, lead):
 
 
 @helper
+def _first_awake(cand, n, kind, K):
+    """The shortest context length whose expert of ``kind`` found its context (``K + 1``
+    if none did). Every longer expert is awake too: one whose context is missing says
+    what its longest shorter twin says."""
+    for k in range(1, min(n, K) + 1):
+        if cand[k, kind] >= 0:
+            return k
+    return K + 1
+
+
+@helper
 def update(w, rounds, v, cand, n, truth):
     """Hedge's sleeping-experts step (a missing context's expert says what its longest
     shorter twin found says), then the leader rescaled to 1 and the spread bound;
@@ -217,24 +228,19 @@ def update(w, rounds, v, cand, n, truth):
     K = w.shape[1]
     for kind in range(N_KINDS):
         said = -1
-        for k in range(1, K + 1):
+        for k in range(_first_awake(cand, n, kind, K), K + 1):
             if k <= n and cand[k, kind] >= 0:
                 said = cand[k, kind]
-            if said >= 0:
-                before += w[v, k - 1, kind]
-                if said != truth:
-                    w[v, k - 1, kind] *= _BETA
-                after += w[v, k - 1, kind]
+            before += w[v, k - 1, kind]
+            if said != truth:
+                w[v, k - 1, kind] *= _BETA
+            after += w[v, k - 1, kind]
     if after <= 0.0:
         return
     ratio = before / after
     for kind in range(N_KINDS):
-        said = -1
-        for k in range(1, K + 1):
-            if k <= n and cand[k, kind] >= 0:
-                said = cand[k, kind]
-            if said >= 0:
-                w[v, k - 1, kind] *= ratio
+        for k in range(_first_awake(cand, n, kind, K), K + 1):
+            w[v, k - 1, kind] *= ratio
     leader = 0.0
     for k in range(w.shape[1]):
         for kind in range(N_KINDS):
