@@ -178,6 +178,58 @@ def test_merging_separately_learned_libraries_equals_one_run(episodes, cut):
     assert_fresh_sums(merged)
 
 
+def _state(library: PatternLibrary) -> dict:
+    """Everything a saved library holds, and what learning on would change."""
+    out = {f"export.{k}": v.tobytes() for k, v in library.export().items()}
+    out |= {f"mixer.{i}": a.tobytes() for i, a in enumerate(library.mixer)}
+    return out | {"clock": library.clock, "views": tuple(library.view_names), "tokens": len(library.tokens)}
+
+
+@pytest.mark.parametrize("case", ["pointer", "alarms", "new view", "live first"])
+def test_a_merge_in_place_is_the_rebuilt_merge(case):
+    # merge_libraries(consume=True) rebases the first library instead of rebuilding it:
+    # the same patterns, fresh counts, weights and clock, and learning on gives the same
+    rng = np.random.default_rng(11)
+    vocabulary = naming(60)
+
+    def learned(pairs, names=vocabulary):
+        library = PatternLibrary(max_length=3, vocabulary=names)
+        for commands, positions in pairs:
+            library.learn(Episode.from_pairs([2], commands, positions))
+        return library
+
+    def stream(n, symbols):
+        return rng.integers(0, 2, n), rng.integers(2, symbols, n)
+
+    def walk(n, sign):  # a pointer of 7 positions, each command one step (sign: its direction)
+        commands = rng.integers(0, 2, n)
+        return commands, 2 + (np.cumsum(sign * (2 * commands - 1)) % 7)
+
+    first = [stream(1500, 9), stream(800, 9)] if case != "alarms" else [walk(1500, 1)]
+    second = [stream(1200, 9)] if case != "alarms" else [walk(3000, 1), walk(3000, -1)]  # b reverses: alarms
+    later = stream(700, 9)
+    names_b = vocabulary
+    if case == "new view":  # b names a channel a never saw
+        names_b = naming(60)
+        names_b.add_channel("other", OBSERVATION)
+        names_b.symbol("other", 0)
+    second_learned = learned(second, names_b)
+    if case == "alarms":
+        assert second_learned.mixer.epoch.max() > 0
+    rebuilt = merge_libraries(loaded(learned(first), vocabulary), loaded(learned(second, names_b), names_b))
+    a = learned(first)
+    if case != "live first":  # as merge_files has it: the first library loaded from its file
+        a = PatternLibrary.from_export(a.export(), tokens=a.tokens, clock=a.clock, view_names=a.view_names,
+                                       mixer=a.mixer, max_length=3, vocabulary=vocabulary, has_actions=True)
+    in_place = merge_libraries(loaded(a, vocabulary), loaded(learned(second, names_b), names_b), consume=True)
+    assert in_place.library is a
+    assert _state(in_place.library) == _state(rebuilt.library)
+    assert_fresh_sums(in_place.library)
+    for merged in (rebuilt, in_place):
+        merged.library.learn(Episode.from_pairs([2], *later))
+    assert _state(in_place.library) == _state(rebuilt.library)
+
+
 def test_merge_keeps_the_order_of_first_sight_and_shifts_recency():
     first, second = PatternLibrary(max_length=1), PatternLibrary(max_length=1)
     first.learn(Episode.from_pairs([2], [0], [3]))

@@ -358,6 +358,44 @@ class PatternLibrary:
         library.add_export(arrays)
         return library
 
+    def rebase(self, *, tokens: TokenTable, clock: int, view_names: list[str], mixer: Mixer,
+               keep_fresh: np.ndarray, vocabulary: Vocabulary | None = None) -> None:
+        """This library as :meth:`from_export` rebuilds it from its own :meth:`export`, with
+        ``tokens`` (a superset keeping this library's ids), ``view_names`` (this library's
+        first), ``mixer`` and ``clock``, and the fresh counts zeroed in the views where
+        ``keep_fresh`` is false, without rebuilding the tree: fresh counts of an ended epoch
+        are dropped, every context takes its view's epoch, and the streams restart. So a
+        merge extends its first library in place (:mod:`slearn.jobs.merge`), and merging
+        ``n`` libraries in turn costs what their own patterns cost, not ``n`` rebuilds of the
+        growing union."""
+        if tokens.intern(ACTION, ()) != self.empty_action or tokens.intern(OBSERVATION, ()) != self.empty_observation:
+            raise ValueError("rebase needs a token table that keeps this library's token ids")
+        tree = self.tree
+        n_nodes, m = int(tree.size[0]), int(tree.size[1])
+        have = len(self.view_names)
+        roots = cast(ViewState, self.streams).root if self.streams is not None else np.zeros(0, np.int32)
+        old_epoch = self.mixer.epoch[:have] if self.mixer is not None else np.zeros(have, np.int32)
+        view_of_node = _views_of_nodes(tree.parent[:n_nodes], roots)
+        owner = tree.owner[:m]
+        entry_view = view_of_node[owner]
+        keep = (tree.epoch[owner] == old_epoch[entry_view]) & np.asarray(keep_fresh, bool)[entry_view]
+        tree.fresh[:m] = np.where(keep, tree.fresh[:m], 0)
+        self.tokens, self.clock_array[0] = tokens, int(clock)
+        if vocabulary is not None:
+            self.vocabulary = vocabulary
+            self._view_of_symbol = np.zeros(0, np.int32)
+            self._in_scope = np.zeros((len(self._scopes), 0), np.uint8)
+        self.view_names = list(view_names)
+        self.mixer = with_views(mixer, len(view_names))
+        epochs = self.mixer.epoch
+        tree.epoch[:n_nodes] = np.where(tree.parent[:n_nodes] >= 0, epochs[view_of_node], 0)  # roots: as added
+        self._ensure_state()  # roots, weights and reports for the views new here
+        streams = cast(ViewState, self.streams)
+        self.streams = views.new_view_state(len(view_names), self.max_context, streams.root, streams.scope)
+        self.past = new_past(len(view_names))
+        _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
+                     tree.best, tree.newest, tree.fresh_best, tree.fresh_total, tree.fresh_outcomes, n_nodes)
+
     def add_export(self, arrays: dict[str, np.ndarray], shift: int = 0) -> None:
         """Count the patterns of another library's :meth:`export` (in this library's tokens
         and views) into this one: counts and fresh counts add, a pattern's last occurrence
@@ -443,6 +481,21 @@ def _depths(parent, n):
         if parent[node] >= 0:
             depth[node] = depth[parent[node]] + 1
     return depth
+
+
+def _views_of_nodes(parent: np.ndarray, roots: np.ndarray) -> np.ndarray:
+    """The view of every node: the one whose root its parent links lead to (a context is
+    never longer than the tree is deep, so the jumps are few)."""
+    top = np.arange(len(parent))
+    while True:
+        up = parent[top]
+        climbing = up >= 0
+        if not climbing.any():
+            break
+        top = np.where(climbing, up, top)
+    view_of_root = np.full(len(parent), -1, np.int32)
+    view_of_root[roots] = np.arange(len(roots), dtype=np.int32)
+    return view_of_root[top]
 
 
 def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:

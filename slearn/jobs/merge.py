@@ -48,8 +48,11 @@ from slearn.io.files import check_output
 from slearn.io.library_file import LoadedLibrary, SaveSummary, file_record, load_library, save_library
 
 
-def merge_libraries(a: LoadedLibrary, b: LoadedLibrary) -> LoadedLibrary:
+def merge_libraries(a: LoadedLibrary, b: LoadedLibrary, *, consume: bool = False) -> LoadedLibrary:
     """The library of learning ``a``'s episodes, then ``b``'s (see the module docstring).
+
+    ``consume``: ``a``'s library becomes the merged one (extended in place, not rebuilt: a
+    chain of merges then costs what each added library costs); do not use ``a`` after.
 
     Raises:
         SpecError: the libraries are incompatible (spec, channels, roles, parameters).
@@ -63,7 +66,8 @@ def merge_libraries(a: LoadedLibrary, b: LoadedLibrary) -> LoadedLibrary:
     if isinstance(a.library, LiteralLibrary):  # both are: _incompatibility checked the scoring
         library = _merged_literal(a.library, cast(LiteralLibrary, b.library), tokens, token_map)
     else:
-        library = _merged_occurrences(a.library, cast(PatternLibrary, b.library), tokens, token_map, vocabulary)
+        library = _merged_occurrences(a.library, cast(PatternLibrary, b.library), tokens, token_map, vocabulary,
+                                      consume)
     library.forgotten = a.library.forgotten + b.library.forgotten
     if library.max_patterns is not None and len(library) > library.max_patterns:
         library.forget(int(library.max_patterns * FORGET_TO))
@@ -88,7 +92,7 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
     check_output(output, overwrite, inputs=paths)
     merged = load_library(paths[0])
     for path in paths[1:]:
-        merged = merge_libraries(merged, load_library(path))
+        merged = merge_libraries(merged, load_library(path), consume=True)
     merged.provenance["merged_from"] = [file_record(p) for p in paths]
     for message in _double_counts(merged.provenance):
         warnings.warn(DataWarning(message), stacklevel=2)
@@ -196,23 +200,30 @@ def _recency(n: int, where_a, where_b, seen_a, seen_b, shift: int) -> np.ndarray
 
 
 def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable,
-                        token_map: np.ndarray, vocabulary: Vocabulary) -> PatternLibrary:
-    """``a`` rebuilt, then ``b``'s patterns counted into it (``PatternLibrary.add_export``):
-    the union in run order, counts summed, recency on one clock. Fresh counts of ``a`` are
-    dropped in the views where ``b`` raised an alarm (they belong to an epoch that ended)."""
+                        token_map: np.ndarray, vocabulary: Vocabulary, consume: bool = False) -> PatternLibrary:
+    """``a`` rebuilt (or, ``consume``, rebased in place: the same library), then ``b``'s
+    patterns counted into it (``PatternLibrary.add_export``): the union in run order,
+    counts summed, recency on one clock. Fresh counts of ``a`` are dropped in the views
+    where ``b`` raised an alarm (they belong to an epoch that ended)."""
     names = list(a.view_names) + [v for v in b.view_names if v not in a.view_names]
     view_map = np.array([names.index(v) for v in b.view_names], np.int32)
-    ea, eb = a.export(), b.export()
+    eb, shift = b.export(), a.clock
     mixer, alarmed = _merged_mixer(a, b, names, view_map)
-    ea = {**ea, "fresh": np.where(alarmed[ea["view"]], 0, ea["fresh"]) if len(ea["view"]) else ea["fresh"]}
-    merged = PatternLibrary.from_export(ea, tokens=tokens, clock=a.clock + b.clock,
-                                        view_names=names, mixer=mixer, max_length=a.max_length,
-                                        max_patterns=a.max_patterns,
-                                        vocabulary=vocabulary if a.factored else None,
-                                        has_actions=a.has_actions, action_scopes=a.action_scopes)
+    if consume and a.streams is not None:
+        a.rebase(tokens=tokens, clock=a.clock + b.clock, view_names=names, mixer=mixer, keep_fresh=~alarmed,
+                 vocabulary=vocabulary if a.factored else None)
+        merged = a
+    else:
+        ea = a.export()
+        ea = {**ea, "fresh": np.where(alarmed[ea["view"]], 0, ea["fresh"]) if len(ea["view"]) else ea["fresh"]}
+        merged = PatternLibrary.from_export(ea, tokens=tokens, clock=a.clock + b.clock,
+                                            view_names=names, mixer=mixer, max_length=a.max_length,
+                                            max_patterns=a.max_patterns,
+                                            vocabulary=vocabulary if a.factored else None,
+                                            has_actions=a.has_actions, action_scopes=a.action_scopes)
     if len(eb["view"]):
         eb = {**eb, "view": view_map[eb["view"]], "pattern_tokens": token_map[eb["pattern_tokens"]]}
-    merged.add_export(eb, shift=a.clock)
+    merged.add_export(eb, shift=shift)
     return merged
 
 

@@ -186,7 +186,7 @@ def merge_pair(a: bytes | None, b: bytes | None) -> bytes | None:
     small_pages()
     if a is None or b is None:
         return a if b is None else b
-    return loaded_bytes(merge_libraries(library_from_bytes(a), library_from_bytes(b)))
+    return loaded_bytes(merge_libraries(library_from_bytes(a), library_from_bytes(b), consume=True))
 
 
 def _add_stats(result: LearnResult, stats: list[dict]) -> None:
