@@ -185,10 +185,35 @@ def _state(library: PatternLibrary) -> dict:
     return out | {"clock": library.clock, "views": tuple(library.view_names), "tokens": len(library.tokens)}
 
 
+def _merged_by_rebuilding(la: LoadedLibrary, lb: LoadedLibrary) -> PatternLibrary:
+    """The merge rule spelled out (merge.py's module docstring): ``a`` rebuilt from its
+    export with the merged state, its fresh counts dropped in the views where ``b`` raised
+    an alarm, then ``b``'s patterns counted in."""
+    from slearn.jobs.merge import _merged_mixer, _merged_tokens, _merged_vocabulary
+
+    a, b = la.library, lb.library
+    vocabulary, symbol_map = _merged_vocabulary(la.vocabulary, lb.vocabulary)
+    tokens, token_map = _merged_tokens(a.tokens, b.tokens, symbol_map)
+    names = list(a.view_names) + [v for v in b.view_names if v not in a.view_names]
+    view_map = np.array([names.index(v) for v in b.view_names], np.int32)
+    alarmed = np.zeros(len(names), bool)
+    alarmed[view_map] = b.mixer.epoch[:len(view_map)] > 0
+    ea = a.export()
+    ea["fresh"] = np.where(alarmed[ea["view"]], 0, ea["fresh"])
+    merged = PatternLibrary.from_export(ea, tokens=tokens, clock=a.clock + b.clock, view_names=names,
+                                        mixer=_merged_mixer(a, b, names, view_map), max_length=a.max_length,
+                                        vocabulary=vocabulary, has_actions=True)
+    eb = b.export()
+    merged.add_export({**eb, "view": view_map[eb["view"]], "pattern_tokens": token_map[eb["pattern_tokens"]]},
+                      shift=a.clock)
+    return merged
+
+
 @pytest.mark.parametrize("case", ["pointer", "alarms", "new view", "live first"])
 def test_a_merge_in_place_is_the_rebuilt_merge(case):
-    # merge_libraries(consume=True) rebases the first library instead of rebuilding it:
-    # the same patterns, fresh counts, weights and clock, and learning on gives the same
+    # merge_libraries rebases the first library (consume=True: in place, else a copy) instead of
+    # rebuilding it: the same patterns, fresh counts, weights and clock as the rule spelled out,
+    # and learning on gives the same
     rng = np.random.default_rng(11)
     vocabulary = naming(60)
 
@@ -216,18 +241,23 @@ def test_a_merge_in_place_is_the_rebuilt_merge(case):
     second_learned = learned(second, names_b)
     if case == "alarms":
         assert second_learned.mixer.epoch.max() > 0
-    rebuilt = merge_libraries(loaded(learned(first), vocabulary), loaded(learned(second, names_b), names_b))
+    expected = _merged_by_rebuilding(loaded(learned(first), vocabulary), loaded(second_learned, names_b))
+    kept = learned(first)
+    before = _state(kept)
+    copied = merge_libraries(loaded(kept, vocabulary), loaded(learned(second, names_b), names_b))
+    assert _state(kept) == before  # without consume the first library is left as it was
     a = learned(first)
     if case != "live first":  # as merge_files has it: the first library loaded from its file
         a = PatternLibrary.from_export(a.export(), tokens=a.tokens, clock=a.clock, view_names=a.view_names,
                                        mixer=a.mixer, max_length=3, vocabulary=vocabulary, has_actions=True)
     in_place = merge_libraries(loaded(a, vocabulary), loaded(learned(second, names_b), names_b), consume=True)
-    assert in_place.library is a
-    assert _state(in_place.library) == _state(rebuilt.library)
-    assert_fresh_sums(in_place.library)
-    for merged in (rebuilt, in_place):
-        merged.library.learn(Episode.from_pairs([2], *later))
-    assert _state(in_place.library) == _state(rebuilt.library)
+    assert in_place.library is a and copied.library is not kept
+    for merged in (copied.library, in_place.library):
+        assert _state(merged) == _state(expected)
+        assert_fresh_sums(merged)
+    for merged in (expected, copied.library, in_place.library):
+        merged.learn(Episode.from_pairs([2], *later))
+    assert _state(in_place.library) == _state(copied.library) == _state(expected)
 
 
 def test_merge_keeps_the_order_of_first_sight_and_shifts_recency():

@@ -359,27 +359,16 @@ class PatternLibrary:
         return library
 
     def rebase(self, *, tokens: TokenTable, clock: int, view_names: list[str], mixer: Mixer,
-               keep_fresh: np.ndarray, vocabulary: Vocabulary | None = None) -> None:
-        """This library as :meth:`from_export` rebuilds it from its own :meth:`export`, with
-        ``tokens`` (a superset keeping this library's ids), ``view_names`` (this library's
-        first), ``mixer`` and ``clock``, and the fresh counts zeroed in the views where
-        ``keep_fresh`` is false, without rebuilding the tree: fresh counts of an ended epoch
-        are dropped, every context takes its view's epoch, and the streams restart. So a
-        merge extends its first library in place (:mod:`slearn.jobs.merge`), and merging
-        ``n`` libraries in turn costs what their own patterns cost, not ``n`` rebuilds of the
-        growing union."""
+               vocabulary: Vocabulary | None = None) -> None:
+        """Give this library ``tokens`` (a superset keeping its token ids), ``view_names`` (its
+        own first), ``mixer`` and ``clock``, keeping its patterns, and restart its streams: a
+        merge extends its first library so (:mod:`slearn.jobs.merge`), and merging ``n``
+        libraries in turn costs what their own patterns cost, not ``n`` rebuilds of the
+        growing union. A view whose epoch ``mixer`` advances has its fresh counts end as
+        after an alarm in learning: they are reset when a context is next counted
+        (:func:`slearn.core.context_tree.refresh`), and read as none before."""
         if tokens.intern(ACTION, ()) != self.empty_action or tokens.intern(OBSERVATION, ()) != self.empty_observation:
             raise ValueError("rebase needs a token table that keeps this library's token ids")
-        tree = self.tree
-        n_nodes, m = int(tree.size[0]), int(tree.size[1])
-        have = len(self.view_names)
-        roots = cast(ViewState, self.streams).root if self.streams is not None else np.zeros(0, np.int32)
-        old_epoch = self.mixer.epoch[:have] if self.mixer is not None else np.zeros(have, np.int32)
-        view_of_node = _views_of_nodes(tree.parent[:n_nodes], roots)
-        owner = tree.owner[:m]
-        entry_view = view_of_node[owner]
-        keep = (tree.epoch[owner] == old_epoch[entry_view]) & np.asarray(keep_fresh, bool)[entry_view]
-        tree.fresh[:m] = np.where(keep, tree.fresh[:m], 0)
         self.tokens, self.clock_array[0] = tokens, int(clock)
         if vocabulary is not None:
             self.vocabulary = vocabulary
@@ -387,14 +376,11 @@ class PatternLibrary:
             self._in_scope = np.zeros((len(self._scopes), 0), np.uint8)
         self.view_names = list(view_names)
         self.mixer = with_views(mixer, len(view_names))
-        epochs = self.mixer.epoch
-        tree.epoch[:n_nodes] = np.where(tree.parent[:n_nodes] >= 0, epochs[view_of_node], 0)  # roots: as added
         self._ensure_state()  # roots, weights and reports for the views new here
-        streams = cast(ViewState, self.streams)
-        self.streams = views.new_view_state(len(view_names), self.max_context, streams.root, streams.scope)
-        self.past = new_past(len(view_names))
-        _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
-                     tree.best, tree.newest, tree.fresh_best, tree.fresh_total, tree.fresh_outcomes, n_nodes)
+        if self.streams is not None:
+            self.streams = views.new_view_state(len(view_names), self.max_context, self.streams.root,
+                                                self.streams.scope)
+            self.past = new_past(len(view_names))
 
     def add_export(self, arrays: dict[str, np.ndarray], shift: int = 0) -> None:
         """Count the patterns of another library's :meth:`export` (in this library's tokens
@@ -416,10 +402,11 @@ class PatternLibrary:
             hi = min(lo + _IMPORT_PIECE, n)
             self.tree = context_tree.ensure_room(self.tree, int(offsets[hi] - offsets[lo]) + 64, hi - lo + 64)
             tree = self.tree
-            _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.epoch,
-                    tree.node_slots, tree.owner, tree.outcome, tree.count, tree.last_seen, tree.fresh,
-                    tree.next, tree.entry_slots, tree.size, cast(ViewState, self.streams).root,
-                    cast(Mixer, self.mixer).epoch, view, offsets, flat, counts, seen, fresh, shift, lo, hi)
+            _import(tree.parent, tree.token, tree.first, tree.best, tree.newest, tree.fresh_best, tree.fresh_total,
+                    tree.fresh_outcomes, tree.epoch, tree.node_slots, tree.owner, tree.outcome, tree.count,
+                    tree.last_seen, tree.fresh, tree.next, tree.entry_slots, tree.size,
+                    cast(ViewState, self.streams).root, cast(Mixer, self.mixer).epoch, view, offsets, flat, counts,
+                    seen, fresh, shift, lo, hi)
         tree = self.tree
         _derive_best(tree.first, tree.next, tree.count, tree.last_seen, tree.fresh, tree.outcome,
                      tree.best, tree.newest, tree.fresh_best, tree.fresh_total, tree.fresh_outcomes,
@@ -481,21 +468,6 @@ def _depths(parent, n):
         if parent[node] >= 0:
             depth[node] = depth[parent[node]] + 1
     return depth
-
-
-def _views_of_nodes(parent: np.ndarray, roots: np.ndarray) -> np.ndarray:
-    """The view of every node: the one whose root its parent links lead to (a context is
-    never longer than the tree is deep, so the jumps are few)."""
-    top = np.arange(len(parent))
-    while True:
-        up = parent[top]
-        climbing = up >= 0
-        if not climbing.any():
-            break
-        top = np.where(climbing, up, top)
-    view_of_root = np.full(len(parent), -1, np.int32)
-    view_of_root[roots] = np.arange(len(roots), dtype=np.int32)
-    return view_of_root[top]
 
 
 def _compacted(tree: Tree, alive: np.ndarray, depth: np.ndarray) -> Tree:
@@ -592,7 +564,8 @@ def _export(parent, token, node_epoch, owner, outcome, fresh, view_epoch, m, max
 
 
 @kernel
-def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slots, owner, outcome, count,
+def _import(parent, token, first, best, newest, fresh_best, fresh_total, fresh_outcomes, node_epoch, node_slots,
+            owner, outcome, count,
             last_seen, fresh, nxt, entry_slots, size, roots, view_epoch, view, offsets, flat, counts, seen,
             fresh_in, shift, lo, hi):
     for i in range(lo, hi):
@@ -603,7 +576,8 @@ def _import(parent, token, first, best, newest, fresh_best, node_epoch, node_slo
             h = context_tree.path_hash(h, flat[j])
             node = context_tree.child_or_add(node_slots, parent, token, first, best, newest, fresh_best,
                                             node_epoch, size, node, flat[j], h)
-            node_epoch[node] = view_epoch[view[i]]
+            context_tree.refresh(first, nxt, fresh, fresh_best, fresh_total, fresh_outcomes, node_epoch, node,
+                                 view_epoch[view[i]])  # an older epoch's fresh counts end here, as in learning
         e = context_tree.entry_or_add(entry_slots, owner, outcome, count, last_seen, fresh, nxt, first, size,
                                      node, flat[end - 1])
         count[e] += counts[i]

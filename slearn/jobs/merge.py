@@ -40,7 +40,7 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import CELLS, Mixer
+from slearn.core.mixer import CELLS, Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, SpecError
@@ -201,26 +201,22 @@ def _recency(n: int, where_a, where_b, seen_a, seen_b, shift: int) -> np.ndarray
 
 def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable,
                         token_map: np.ndarray, vocabulary: Vocabulary, consume: bool = False) -> PatternLibrary:
-    """``a`` rebuilt (or, ``consume``, rebased in place: the same library), then ``b``'s
-    patterns counted into it (``PatternLibrary.add_export``): the union in run order,
-    counts summed, recency on one clock. Fresh counts of ``a`` are dropped in the views
-    where ``b`` raised an alarm (they belong to an epoch that ended)."""
+    """``a`` (or, unless ``consume``, a copy of it) rebased onto the merged tokens, views and
+    scoring state, then ``b``'s patterns counted into it (``PatternLibrary.add_export``): the
+    union in run order, counts summed, recency on one clock. In the views where ``b`` raised
+    an alarm the merged epoch is past ``a``'s, so ``a``'s fresh counts there end (they belong
+    to an epoch that ended)."""
     names = list(a.view_names) + [v for v in b.view_names if v not in a.view_names]
     view_map = np.array([names.index(v) for v in b.view_names], np.int32)
     eb, shift = b.export(), a.clock
-    mixer, alarmed = _merged_mixer(a, b, names, view_map)
-    if consume and a.streams is not None:
-        a.rebase(tokens=tokens, clock=a.clock + b.clock, view_names=names, mixer=mixer, keep_fresh=~alarmed,
-                 vocabulary=vocabulary if a.factored else None)
-        merged = a
-    else:
-        ea = a.export()
-        ea = {**ea, "fresh": np.where(alarmed[ea["view"]], 0, ea["fresh"]) if len(ea["view"]) else ea["fresh"]}
-        merged = PatternLibrary.from_export(ea, tokens=tokens, clock=a.clock + b.clock,
-                                            view_names=names, mixer=mixer, max_length=a.max_length,
-                                            max_patterns=a.max_patterns,
-                                            vocabulary=vocabulary if a.factored else None,
-                                            has_actions=a.has_actions, action_scopes=a.action_scopes)
+    mixer = _merged_mixer(a, b, names, view_map)
+    merged = a if consume else PatternLibrary.from_export(
+        a.export(), tokens=a.tokens, clock=a.clock, view_names=a.view_names,
+        mixer=a.mixer if a.mixer is not None else new_mixer(len(a.view_names), a.max_context),
+        max_length=a.max_length, max_patterns=a.max_patterns, vocabulary=a.vocabulary,
+        has_actions=a.has_actions, action_scopes=a.action_scopes)
+    merged.rebase(tokens=tokens, clock=a.clock + b.clock, view_names=names, mixer=mixer,
+                  vocabulary=vocabulary if a.factored else None)
     if len(eb["view"]):
         eb = {**eb, "view": view_map[eb["view"]], "pattern_tokens": token_map[eb["pattern_tokens"]]}
     merged.add_export(eb, shift=shift)
@@ -228,14 +224,13 @@ def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable
 
 
 def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
-                  view_map: np.ndarray) -> tuple[Mixer, np.ndarray]:
-    """The views' scoring state, and which views had an alarm in ``b``: weights and test
-    of the later library where it trained them, alarms and calibration counts summed."""
+                  view_map: np.ndarray) -> Mixer:
+    """The views' scoring state: weights and test of the later library where it trained
+    them, alarms (so epochs) and calibration counts summed."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
     weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
     epoch, calibration, rounds = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64), np.zeros(n, np.int64)
-    alarmed = np.zeros(n, bool)
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
@@ -244,10 +239,9 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
         for i, j in enumerate(view_map.tolist()):
             if mb.rounds[i] > 0:  # b predicted in the view: its weights are the latest
                 weights[j], detector[j], rounds[j] = mb.weight[i], mb.detector[i], mb.rounds[i]
-            alarmed[j] = mb.epoch[i] > 0
             epoch[j] += mb.epoch[i]
             calibration[j] += mb.calibration[i]
-    return Mixer(weights, detector, epoch, calibration, rounds), alarmed
+    return Mixer(weights, detector, epoch, calibration, rounds)
 
 
 def _merged_literal(a: LiteralLibrary, b: LiteralLibrary, tokens: TokenTable,
