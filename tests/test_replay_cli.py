@@ -129,7 +129,6 @@ def test_truncated_log_exits_3_after_scoring_what_was_salvaged(files, tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["{test}"], "is a log, not a library"),
-    (["{library}"], "at least one log"),
     (["{library}", "{test}", "--spec", "{spec}"], "carries the spec"),
     (["{test}", "{test}"], "is a log, not a library"),
     (["{spec}", "{test}"], "pointer.toml"),
@@ -141,6 +140,14 @@ def test_bad_inputs_are_one_line_errors(files, args, message):
     assert result.exit_code == 1
     assert result.stderr.startswith("slearn: error:") and message in result.stderr
     assert result.stderr.count("\n") == 1 and result.stdout == ""
+
+
+def test_a_library_without_logs_is_a_usage_error_as_a_missing_argument_is(files):
+    # as `slearn learn` with no logs: click's exit 2, with the usage line
+    result = run(files["library"])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert " replay [OPTIONS] [LIB] LOGS..." in result.stderr.splitlines()[0]
+    assert "Missing argument 'LOGS...': give a library and at least one log" in result.stderr
 
 
 def test_a_log_with_nothing_salvaged_is_an_error_and_writes_nothing(files, tmp_path):

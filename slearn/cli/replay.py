@@ -53,7 +53,7 @@ def _check_distinct(outputs: list[tuple[str, str | None]]) -> None:
 
 
 @click.command("replay")
-@click.argument("paths", nargs=-1, required=True, type=click.Path())
+@click.argument("paths", nargs=-1, required=True, type=click.Path(), metavar="[LIB] LOGS...")
 @click.option("--online", is_flag=True, help="Keep learning while replaying (prequential).")
 @click.option("--spec", "spec", type=click.Path(dir_okay=False),
               help="Channel spec (TOML): start from an empty library (implies --online).")
@@ -161,8 +161,8 @@ def _split(paths: tuple[str, ...], spec: str | None) -> tuple[str | None, list[s
                              "(slearn replay LIB LOGS...), or --spec FILE to start from an empty one")
         return None, list(paths)
     if len(paths) < 2:
-        raise InputError("give a library and at least one log (slearn replay LIB LOGS...), "
-                         "or --spec FILE and logs to start from an empty library")
+        raise click.UsageError("Missing argument 'LOGS...': give a library and at least one log "
+                               "(slearn replay LIB LOGS...), or --spec FILE and logs to start from an empty library")
     return paths[0], list(paths[1:])
 
 
