@@ -18,7 +18,7 @@ import numpy as np
 from slearn.core._jit import helper, kernel
 from slearn.core.addresses import address_table, cube, matrix, vector
 from slearn.core.context_tree import Tree, child, path_hash, root_path
-from slearn.core.mixer import N_KINDS, Mixer, heaviest_beyond, select
+from slearn.core.mixer import BETA, N_KINDS, Mixer, heaviest_beyond, select
 from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_hold, record_prediction
 from slearn.core.views import NO_ACTIONS, NO_TOKEN, UNKNOWN, ViewState, new_view_state
 
@@ -286,7 +286,7 @@ def predict_queries(table):
                 whole = n < reach or reach == depth or found < n  # no longer context counts
                 if found > 0:
                     k_sel, kind, heaviest = select(weights, v, cand, found)
-                    if not whole and not heaviest > beyond[v, n]:  # a longer one's expert may speak
+                    if not whole and not heaviest * BETA > beyond[v, n]:  # a longer one's expert may speak
                         n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, depth)
                         found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n,
                                            epoch[v], cand)
