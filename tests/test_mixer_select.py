@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slearn.core.library import PatternLibrary
-from slearn.core.mixer import BETA, ETA, FREQUENT, N_KINDS, RECENT, new_mixer
+from slearn.core.mixer import BETA, ETA, FREQUENT, N_KINDS, RECENT, SAME, new_mixer
 from slearn.core.mixer import select as select_helper
 from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
@@ -34,10 +34,19 @@ def test_the_longest_context_less_than_a_mistake_behind_the_leader_speaks():
     assert select(w, 0, awake(6), 6) == (1, FREQUENT, 1.0)
     w[0, 3, FREQUENT] = BETA ** 0.99
     assert select(w, 0, awake(6), 6) == (4, FREQUENT, 1.0)
-    # contexts 4..6 beyond the history: 4 lends its weight to 3, the longest found
-    assert select(w, 0, awake(3), 3) == (3, FREQUENT, 1.0)
-    w[0, 3, FREQUENT] = 0.5
+    # contexts 4..6 beyond the history: only experts whose own context was found may
+    # speak for the leader (a missing one's weight lent to its twin is not its twin's record)
     assert select(w, 0, awake(3), 3) == (1, FREQUENT, 1.0)
+
+
+def test_experts_that_never_disagreed_leave_it_to_the_shortest_context():
+    # equal records: the weights differ by the prior only (new_mixer), so the simplest speaks
+    w = new_mixer(1, 6).weight
+    assert select(w, 0, awake(6), 6) == (1, FREQUENT, w[0, 0, FREQUENT])
+    w[0, 5, FREQUENT] *= 1 - SAME / 2
+    assert select(w, 0, awake(6), 6)[0] == 1
+    w[0, 5, FREQUENT] = np.exp(-ETA / 4)  # a quarter of a mistake behind: a record of its own
+    assert select(w, 0, awake(6), 6)[0] == 6
 
 
 def test_the_tolerance_stays_within_the_leaders_kind():
@@ -48,15 +57,17 @@ def test_the_tolerance_stays_within_the_leaders_kind():
     assert select(w, 0, awake(6), 6) == (1, FREQUENT, 1.0)
 
 
-def test_a_missing_long_context_lends_its_weight_within_the_kind():
-    # context 6 is missing: it lends its weight to its longest shorter twin found (5),
-    # which then weighs as much as the leader and speaks for it
+def test_a_missing_long_context_lends_its_weight_to_the_leader_only():
+    # context 6 is missing: it lends its weight to its longest shorter twin found (5) in
+    # choosing the leader, but context 5's own record is what lets it speak for the leader
     w = new_mixer(1, 6).weight
-    w[0, :, FREQUENT] = [1.0, 0.2, 0.2, 0.2, 0.2, 0.99]
+    w[0, :, FREQUENT] = [0.98, 0.2, 0.2, 0.2, 0.2, 1.0]
     w[0, :, RECENT] = 0.1
     cand = awake(6)
     cand[6] = -1
-    assert select(w, 0, cand, 6) == (5, FREQUENT, 1.0)
+    assert select(w, 0, cand, 6) == (5, FREQUENT, 1.0)  # 5 leads with 6's weight
+    w[0, 5, FREQUENT] = 0.97
+    assert select(w, 0, cand, 6) == (1, FREQUENT, 0.98)  # 1 leads; 5's own 0.2 is far behind it
 
 
 @settings(max_examples=30, deadline=None)

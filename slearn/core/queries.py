@@ -84,7 +84,7 @@ class Work(NamedTuple):
     nodes: np.ndarray   # int32 (max_context + 1,): the contexts found
     hashes: np.ndarray  # uint64 (max_context + 1,): their path hashes
     cand: np.ndarray    # int32 (max_context + 1, kinds): the experts' outcomes
-    beyond: np.ndarray  # float64 (views, max_context + 1): see mixer.heaviest_beyond
+    beyond: np.ndarray  # float64 (views, 2 * (max_context + 1)): see mixer.heaviest_beyond
     lead: np.ndarray    # int64 (views,)
     ranked: np.ndarray  # int32 (top_k,): see online.record_prediction
 
@@ -133,7 +133,7 @@ def new_buffers(library, queries: int, top_k: int, slots: int | None = None) -> 
     slots = memo_slots(n if slots is None else slots, library.max_context, top_k)
     k = library.max_context + 1
     work = Work(np.zeros(k, np.int32), np.zeros(k, np.uint64), np.full((k, N_KINDS), -1, np.int32),
-                np.zeros((n_views, k)), np.zeros(n_views, np.int64), np.zeros(top_k, np.int32))
+                np.zeros((n_views, 2 * k)), np.zeros(n_views, np.int64), np.zeros(top_k, np.int32))
     return Buffers(new_view_state(n_views, library.max_context, library.streams.root, library.streams.scope),
                    new_reports(n, top_k), new_memo(slots, library.max_context, top_k),
                    Query(run, _NO_I32, _NO_I32, np.zeros((0, scopes), np.int32), _NO_I64, _NO_I32, _NO_I32,
@@ -286,7 +286,7 @@ def predict_queries(table):
                 whole = n < reach or reach == depth or found < n  # no longer context counts
                 if found > 0:
                     k_sel, kind, heaviest = select(weights, v, cand, found)
-                    if not whole and not heaviest * BETA > beyond[v, n]:  # a longer one's expert may speak
+                    if not whole and not (heaviest > beyond[v, n] and heaviest * BETA >= beyond[v, K + 1 + n]):
                         n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, depth)
                         found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n,
                                            epoch[v], cand)
