@@ -4,11 +4,11 @@ import numba
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_predictor import assert_single_predictions_are_the_runs
 
 from slearn.core.library import PatternLibrary
 from slearn.core.mixer import BETA, ETA, FREQUENT, N_KINDS, RECENT, SAME, new_mixer
 from slearn.core.mixer import select as select_helper
-from slearn.core.predictor import Predictor
 from slearn.core.stream import Episode
 
 
@@ -82,11 +82,5 @@ def test_frozen_batch_predictions_agree_with_the_run_under_near_ties(seed):
     w = library.mixer.weight
     w[:, :, :2] = np.exp(-ETA * rng.uniform(0, 3, w[:, :, :2].shape))
     w[:, :, :2] /= w[:, :, :2].max(axis=(1, 2), keepdims=True)
-    test = Episode.from_pairs(obs[:1], np.full(60, 100), rng.integers(0, 2, 60))
-    reports = library.run(library.encode(test), learn=False, record=True)
-    single = Predictor(library)
-    history = test.steps()
-    for t in range(1, len(history)):
-        got = single.predict(history[:t], history[t][0])
-        token = int(reports.predicted[t])
-        assert got.observations == (None if token < 0 else library.tokens.symbols(token))
+    assert_single_predictions_are_the_runs(
+        library, Episode.from_pairs(obs[:1], np.full(60, 100), rng.integers(0, 2, 60)))

@@ -187,9 +187,12 @@ def test_ranked_list_starts_with_the_longest_context_ranked_like_brute_force(see
 def test_frozen_replay_agrees_with_single_predictions():
     library = PatternLibrary(max_length=3)
     library.learn(pointer_episode("1 R 2 R 3 L 2 L 1 R 2 R 3 R 4 L 3"))
-    episode = pointer_episode("2 R 3 L 2 R 3 R 4 L 3 L 2")
-    codes = library.encode(episode)
-    reports = library.run(codes, learn=False, record=True)
+    assert_single_predictions_are_the_runs(library, pointer_episode("2 R 3 L 2 R 3 R 4 L 3 L 2"))
+
+
+def assert_single_predictions_are_the_runs(library, episode):
+    """``Predictor.predict`` at every step of ``episode`` says what a frozen run records."""
+    reports = library.run(library.encode(episode), learn=False, record=True)
     single = Predictor(library)
     history = episode.steps()
     for t in range(1, len(history)):
