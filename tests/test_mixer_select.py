@@ -74,7 +74,7 @@ def test_a_missing_long_context_lends_its_weight_to_the_leader_only():
 @given(st.integers(0, 2**32 - 1))
 def test_frozen_batch_predictions_agree_with_the_run_under_near_ties(seed):
     # the frozen batch path looks up longer contexts only when their experts could speak;
-    # with weights a fraction of a mistake apart it must still choose as the run does
+    # with weights a fraction of a mistake apart, or tied, it must still choose as the run does
     rng = np.random.default_rng(seed)
     obs = rng.integers(0, 2, 301)  # two readings, one command: long contexts recur
     library = PatternLibrary(max_length=6)
@@ -82,5 +82,7 @@ def test_frozen_batch_predictions_agree_with_the_run_under_near_ties(seed):
     w = library.mixer.weight
     w[:, :, :2] = np.exp(-ETA * rng.uniform(0, 3, w[:, :, :2].shape))
     w[:, :, :2] /= w[:, :, :2].max(axis=(1, 2), keepdims=True)
+    tied = rng.random(w[:, :, :2].shape) < 0.3  # some experts share the leader's record
+    w[:, :, :2][tied] = (1 - SAME * rng.uniform(0, 0.5, tied.sum()))
     assert_single_predictions_are_the_runs(
         library, Episode.from_pairs(obs[:1], np.full(60, 100), rng.integers(0, 2, 60)))

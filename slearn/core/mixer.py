@@ -83,16 +83,14 @@ conditions on more, as a variable-order model takes its longest match. Experts w
 weights differ by the prior only (within ``SAME``: they never disagreed) are tied, and
 with no evidence between them the simplest explanation speaks, the shorter context (on a
 deterministic stream every context agrees, and the frozen look-ups stop at the shortest).
-(Until 2026-12-06 ties went to shorter contexts and the leader spoke however close the
-next was: on the PR2 log's laser tilt joint, learned from its first 40 % or 50 %, the
-6-step frequency expert trailed the 1-step one by half a mistake, and the held-out part
-scored 734 of 794 and 607 of 660 against the Markov baseline's 745 and 618; now 745 and
-618. ``bench_sequences.py`` did not move; ``bench_variants.py`` by at most 0.1, its
-switches not at all. Without the tie
+(Until 2026-12-06 the leader spoke however close the next was: on the PR2 log's laser
+tilt joint, learned from its first 40 % or 50 %, the 6-step frequency expert trailed the
+1-step one by half a mistake, and the held-out part scored 734 of 794 and 607 of 660
+against the Markov baseline's 745 and 618; now 745 and 618. ``bench_sequences.py`` did
+not move, ``bench_variants.py`` by at most 0.1, its switches not at all. Without the tie
 rule the first thousand trials from an empty library rose by 0.1, three switches fell by
 0.1, and ``predict_batch`` on pointer ``simple`` fell from 5.0 to 2.1 M queries/s, every
-query looking up its longest context.) No
-constant is tuned to a data set:
+query looking up its longest context.) No constant is tuned to a data set:
 ``ETA`` is Hedge's rate for tens of experts over ~10^4 predictions, ``SPREAD`` bounds the
 catch-up to ``SPREAD / ETA`` net mistakes, ``FALSE_ALARM`` is a rate and ``PRIOR`` the
 evidence (two predictions) PPM's share has where a context was never seen; the measured
@@ -236,7 +234,7 @@ def heaviest_beyond(w, beyond, lead):
                     untied = max(untied, x)
                 if lead[v] == 0 and (x == top or near(x, top)):
                     lead[v] = k
-            beyond[v, k - 1], beyond[v, K + 1 + k - 1] = heaviest, untied
+            beyond[v, k - 1], beyond[v, K + k] = heaviest, untied
         lead[v] = max(lead[v], 1)
 
 
