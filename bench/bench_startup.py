@@ -7,7 +7,8 @@
 - a cold ``slearn demo`` (empty kernel cache): CPU seconds spent compiling (the sum of numba's
   compile events, callees counted once; issue 12: at most 3 s), every kernel's own compile
   cost, and the cold and warm demo's total CPU time; ``--seeds``/``--trials`` are the demo's
-  (its defaults: 5 seeds of 10,000 trials).
+  (its defaults: 5 seeds of 10,000 trials). The anchor: the same cold demo without the
+  kernels compiled at install (``SLEARN_AOT=0``: numba compiles everything at first use).
 
 Every command runs in a fresh interpreter (``sys.executable -m slearn``); the cold demo gets a
 new, empty ``SLEARN_CACHE_DIR`` and ``NUMBA_CACHE_DIR``.
@@ -114,12 +115,19 @@ def measure(repeat: int, seeds: int, trials: int) -> dict:
         out["info_imports_numba"] = child_report(["info", str(log)])["numba"]
         out["datasets_list_imports_numba"] = child_report(["datasets", "list"])["numba"]
         out["help_imports_numba"] = child_report(["--help"])["numba"]
-        cache = folder / "cache"
+        cache, jit_cache = folder / "cache", folder / "jit-cache"
         env = dict(os.environ, SLEARN_CACHE_DIR=str(cache / "slearn"), NUMBA_CACHE_DIR=str(cache))
         cold = demo(folder, "cold", env, seeds, trials)
         warm = demo(folder, "warm", env, seeds, trials)
+        jit_env = dict(os.environ, SLEARN_AOT="0", SLEARN_CACHE_DIR=str(jit_cache / "slearn"),
+                       NUMBA_CACHE_DIR=str(jit_cache))
+        jit = demo(folder, "jit", jit_env, seeds, trials)
+    from slearn.core import _aot
     kernels = {name: sum(times) for name, times in cold["compiles"].items()}
     out.update(demo_seeds=seeds, demo_trials=trials, cold_demo_cpu_s=cold["cpu_s"],
+               shipped_kernels=_aot._extension() is not None,
+               jit_compile_cpu_s=sum(sum(times) for times in jit["compiles"].values()),
+               jit_cold_demo_cpu_s=jit["cpu_s"],
                warm_demo_cpu_s=warm["cpu_s"], compile_cpu_s=sum(kernels.values()),
                warm_compiles=len(warm["compiles"]),
                kernels=dict(sorted(kernels.items(), key=lambda kv: -kv[1])),
@@ -139,6 +147,9 @@ def render(r: dict) -> str:
              f"slearn demo --seeds {r['demo_seeds']} --trials {r['demo_trials']}: cold {r['cold_demo_cpu_s']:.2f} "
              f"s CPU, warm {r['warm_demo_cpu_s']:.2f} s CPU; compiling {r['compile_cpu_s']:.2f} s CPU "
              f"(target <= 3), warm run compiled {r['warm_compiles']} kernels",
+             f"  kernels compiled at install in use: {r['shipped_kernels']}; without them (SLEARN_AOT=0, "
+             f"numba compiling at first use): compiling {r['jit_compile_cpu_s']:.2f} s CPU, cold demo "
+             f"{r['jit_cold_demo_cpu_s']:.2f} s CPU",
              "", f"{'kernel (own compile CPU, callees excluded)':<58} {'ms':>7} {'sigs':>4}"]
     for name, seconds in r["kernels"].items():
         lines.append(f"{name:<58} {seconds * 1000:7.0f} {r['specializations'][name]:>4}")

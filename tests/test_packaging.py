@@ -1,5 +1,6 @@
 """The wheel installs one import name, slearn, with recorders/replay/datasets inside it."""
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -38,3 +39,10 @@ def test_console_script_and_module_entry_point(wheel):
     assert "slearn = slearn.cli:main" in entry_points
     result = subprocess.run([sys.executable, "-m", "slearn", "--version"], capture_output=True, text=True)
     assert result.returncode == 0 and "slearn" in result.stdout
+
+
+def test_the_wheel_ships_the_kernels_compiled_at_build_and_their_manifest(wheel):
+    names = wheel.namelist()
+    assert "slearn/core/kernel_signatures.json" in names
+    if shutil.which("cc") or shutil.which("gcc"):  # (without a compiler the build skips them)
+        assert any(n.startswith("slearn/core/_compiled.") for n in names)

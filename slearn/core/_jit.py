@@ -47,7 +47,7 @@ STALE_S = 7 * 24 * 3600
 def kernel(function):
     """Compile ``function`` as a cached kernel (it may allocate)."""
     with _slearn_cache():
-        return _plain_calls(numba.njit(cache=True)(function))
+        return _shipped(_plain_calls(numba.njit(cache=True)(function)))
 
 
 def helper(function=None, *, python: bool = False):
@@ -63,7 +63,8 @@ def helper(function=None, *, python: bool = False):
     if not python:
         options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
     with _slearn_cache():
-        return _plain_calls(numba.njit(**options)(function))
+        dispatcher = _plain_calls(numba.njit(**options)(function))
+    return _shipped(dispatcher) if python else dispatcher
 
 
 @intrinsic
@@ -95,9 +96,27 @@ def direct_call(dispatcher, *example):
     (0.2 us of a 0.4 us call with one array). Pass it arguments of exactly those types; a
     dispatcher that cannot give one is returned as it is."""
     try:
-        return dispatcher.compile(tuple(numba.typeof(a) for a in example))
+        args = tuple(numba.typeof(a) for a in example)
+    except ValueError:  # a type numba has not: the plain call says so
+        return dispatcher
+    if args in getattr(dispatcher, "shipped", {}):  # compiled at install (_aot)
+        return dispatcher.shipped[args]
+    return _compile_direct(dispatcher, args)
+
+
+def _compile_direct(dispatcher, args):
+    try:
+        return dispatcher.compile(args)
     except Exception:  # (an interface of numba's that changed: the plain call still works)
         return dispatcher
+
+
+def _shipped(dispatcher):
+    """``dispatcher`` with the signatures compiled at install entered (``_aot``); their entry
+    points are kept as ``dispatcher.shipped``, by argument types."""
+    from slearn.core import _aot
+    dispatcher.shipped = _aot.attach(dispatcher)
+    return dispatcher
 
 
 def _plain_calls(dispatcher):
@@ -142,7 +161,7 @@ class _slearn_cache:
 def cache_folder() -> str:
     """slearn's cache folder for the current sources (created, older ones pruned)."""
     base = cache_base()
-    folder = base / source_fingerprint()
+    folder = base / installed_fingerprint()
     folder.mkdir(parents=True, exist_ok=True)
     folder.touch()
     prune(base, folder)
@@ -159,22 +178,29 @@ def cache_base() -> Path:
     return Path(home) / "slearn" / "numba"
 
 
-def kernel_sources() -> list[Path]:
-    """The source files of every slearn module that compiles kernels, sorted."""
+def kernel_sources(folders: list[Path] | None = None) -> list[Path]:
+    """The source files of every slearn module that compiles kernels, sorted: in the
+    installed packages, or under ``folders`` (a source tree, at build time)."""
     import importlib.util
-    files: set[Path] = set()
-    for name in _PACKAGES:
-        spec = importlib.util.find_spec(name)
-        if spec is not None and spec.submodule_search_locations:
-            files.update(p for folder in spec.submodule_search_locations for p in Path(folder).rglob("*.py"))
+    if folders is None:
+        specs = (importlib.util.find_spec(name) for name in _PACKAGES)
+        folders = [Path(f) for spec in specs if spec is not None and spec.submodule_search_locations
+                   for f in spec.submodule_search_locations]
+    files = {p for folder in folders for p in Path(folder).rglob("*.py")}
     files = {p for p in files if _MARKER in p.read_bytes()} | {Path(__file__)}  # prefetch is compiled in
     return sorted(files, key=lambda p: (p.parent.name, p.name))
 
 
-def source_fingerprint() -> str:
+@lru_cache(maxsize=1)
+def installed_fingerprint() -> str:
+    """The fingerprint of the installed kernel modules (computed once)."""
+    return source_fingerprint()
+
+
+def source_fingerprint(files: list[Path] | None = None) -> str:
     """A short hash of the kernel modules' sources (names and contents)."""
     digest = hashlib.sha256()
-    for path in kernel_sources():
+    for path in kernel_sources() if files is None else files:
         digest.update(f"{path.parent.name}/{path.name}".encode() + b"\0" + path.read_bytes())
     digest.update(numba.__version__.encode())
     return digest.hexdigest()[:16]
