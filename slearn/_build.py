@@ -8,12 +8,17 @@ first use, as it always could. ``SLEARN_AOT=0`` skips the step.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from setuptools.command.build_ext import build_ext
 
-from slearn.core._aot import EXTENSION
+# setuptools loads this file before slearn is importable: slearn.core._aot.EXTENSION, and the
+# source tree that build imports slearn from
+EXTENSION = "slearn.core._compiled"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class BuildKernels(build_ext):
@@ -29,15 +34,19 @@ class BuildKernels(build_ext):
             return super().build_extension(ext)
         target = Path(self.get_ext_fullpath(ext.name))
         target.parent.mkdir(parents=True, exist_ok=True)
-        root = Path(__file__).resolve().parents[1]
+        sys.path.insert(0, str(ROOT))
+        scratch = tempfile.mkdtemp(prefix="slearn-build-")  # the callees' numba cache: not the user's
+        os.environ["SLEARN_CACHE_DIR"] = scratch
         try:
             from slearn.core._aot import build
-            skipped = build(target, root)
+            skipped = build(target, ROOT)
         except Exception as error:  # the install goes on: numba compiles at first use
             target.unlink(missing_ok=True)
             print(f"warning: slearn's kernels were not compiled ahead of time ({type(error).__name__}: "
                   f"{error}); numba compiles them at first use", file=sys.stderr)
             return
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
         if skipped:
             print(f"slearn: compiled at first use instead (their modules need more than numpy and numba "
                   f"to import): {', '.join(skipped)}", file=sys.stderr)

@@ -53,6 +53,11 @@ def test_types_round_trip_through_the_manifest_encoding(numba_type):
     assert decoded == numba_type and decoded._code == numba_type._code  # the dispatcher's key
 
 
+def test_the_build_step_names_the_extension_the_core_looks_for():
+    """(``slearn/_build.py`` runs before slearn is importable, so it spells the name out.)"""
+    assert f'EXTENSION = "{_aot.EXTENSION}"' in (ROOT / "slearn" / "_build.py").read_text()
+
+
 def test_a_type_without_an_encoding_is_refused():
     with pytest.raises(TypeError, match="no encoding"):
         _aot.encode(types.unicode_type)
