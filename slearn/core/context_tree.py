@@ -91,9 +91,11 @@ def new_tree(nodes: int = 1024, entries: int = 1024) -> Tree:
 
 
 def reserved(n: int, dtype) -> np.ndarray:
-    """A writable array of ``n`` values in an anonymous memory map: zero pages until written
-    (C's allocator would keep a freed array's memory for later use, resident)."""
-    return np.frombuffer(mmap.mmap(-1, max(n * np.dtype(dtype).itemsize, 1)), dtype, count=n)
+    """A writable array of ``n`` values in a private anonymous memory map: zero pages until
+    written (C's allocator would keep a freed array's memory for later use, resident).
+    Private, not shared (Python's default): a shared map lives in the kernel's shmem, whose
+    page faults were a quarter of learning's time, and a forked process would write into it."""
+    return np.frombuffer(mmap.mmap(-1, max(n * np.dtype(dtype).itemsize, 1), flags=mmap.MAP_PRIVATE), dtype, count=n)
 
 
 def _empty_slots(capacity: int) -> np.ndarray:
@@ -108,20 +110,25 @@ def room(tree: Tree) -> tuple[int, int]:
 
 
 def grow(tree: Tree, nodes: int, entries: int) -> Tree:
-    """A copy with room for at least ``nodes`` more nodes and ``entries`` more entries."""
+    """A tree with room for at least ``nodes`` more nodes and ``entries`` more entries: the
+    side that has the room keeps its arrays and hash slots; the other is copied into larger
+    arrays and its slots rebuilt."""
     n, m = int(tree.size[0]), int(tree.size[1])
-    node_cap, entry_cap = len(tree.parent), len(tree.owner)
-    node_cap, entry_cap = grown(node_cap, n, nodes), grown(entry_cap, m, entries)
-    if node_cap == len(tree.parent) and entry_cap == len(tree.owner):
-        return tree
-    fresh = new_tree(node_cap, entry_cap)
-    for name in (*_NODE_FILL, *_ENTRY_FILL):
-        used = n if name in _NODE_FILL else m
-        getattr(fresh, name)[:used] = getattr(tree, name)[:used]
-    fresh.size[:] = tree.size
-    rebuild_nodes(fresh.node_slots, fresh.parent, fresh.token, n)
-    hashtable.rebuild(fresh.entry_slots, fresh.owner, fresh.outcome, 0, m)
-    return fresh
+    node_cap, entry_cap = grown(len(tree.parent), n, nodes), grown(len(tree.owner), m, entries)
+    replaced: dict[str, np.ndarray] = {}
+    if node_cap != len(tree.parent):
+        for name in _NODE_FILL:
+            replaced[name] = reserved(node_cap, _NODE_TYPES.get(name, np.int32))
+            replaced[name][:n] = getattr(tree, name)[:n]
+        replaced["node_slots"] = _empty_slots(node_cap)
+        rebuild_nodes(replaced["node_slots"], replaced["parent"], replaced["token"], n)
+    if entry_cap != len(tree.owner):
+        for name in _ENTRY_FILL:
+            replaced[name] = reserved(entry_cap, _ENTRY_TYPES.get(name, np.int32))
+            replaced[name][:m] = getattr(tree, name)[:m]
+        replaced["entry_slots"] = _empty_slots(entry_cap)
+        hashtable.rebuild(replaced["entry_slots"], replaced["owner"], replaced["outcome"], 0, m)
+    return tree._replace(**replaced) if replaced else tree
 
 
 def ensure_room(tree: Tree, nodes: int, entries: int) -> Tree:
