@@ -31,12 +31,11 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from slearn.core._jit import kernel
 from slearn.core.library import PatternLibrary
 from slearn.core.literal import LiteralLibrary
 from slearn.core.online import HOLD, Reports
 from slearn.core.stream import Episode
-from slearn.core.tokens import OBSERVATION, TokenTable, _intern
+from slearn.core.tokens import TokenTable, join_steps
 from slearn.core.views import StepCodes
 from slearn.core.vocabulary import Vocabulary
 from slearn.io.mcap_read import ReadReport
@@ -332,7 +331,7 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
     buf = np.empty(max(per_step, 1), np.int32)
 
     def join(column: np.ndarray) -> np.ndarray:
-        return _join_steps(table, lib, offsets, column, use, buf)
+        return join_steps(table, lib, offsets, column, use, buf)
 
     actual = join(codes.token)
     evaluated = actual >= 0
@@ -351,32 +350,6 @@ def _joined(name: str, codes: StepCodes, reports: Reports, guesses: Reports, tok
     scored[:codes.offsets[first]] = False  # (a first reading is not predicted)
     return EpisodeOutcome(name, *(c[first:] for c in columns), first, truth[first:],
                           confusions(reports.predicted, codes.token, scored))
-
-
-@kernel
-def _join_steps(table, lib, offsets, tokens, use, buf):
-    """Per step, the token of the joined symbols of its used reports: -2 with none used,
-    -1 when every used report abstained (a partial prediction joins what was said)."""
-    out = np.full(len(offsets) - 1, -2, np.int32)
-    for s in range(len(offsets) - 1):
-        m = 0
-        used = 0
-        said = 0
-        for r in range(offsets[s], offsets[s + 1]):
-            if not use[r]:
-                continue
-            used += 1
-            t = tokens[r]
-            if t < 0:
-                continue
-            said += 1
-            for i in range(lib.offsets[t], lib.offsets[t + 1]):
-                buf[m] = lib.symbols[i]
-                m += 1
-        if used == 0:
-            continue
-        out[s] = -1 if said == 0 else _intern(table, OBSERVATION, buf, 0, m)
-    return out
 
 
 def _step_product(offsets: np.ndarray, values: np.ndarray, use: np.ndarray) -> np.ndarray:

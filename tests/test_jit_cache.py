@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -93,8 +94,12 @@ def test_other_librarys_kernels_keep_their_own_cache(tmp_path):
 
 
 def test_fingerprint_covers_every_kernel_module():
+    """Every module that decorates a kernel or helper, in any of the installed folders."""
     names = {f"{p.parent.name}/{p.name}" for p in _jit.kernel_sources()}
-    assert {"core/online.py", "core/tokens.py", "core/views.py", "replay/evaluation.py"} <= names
+    root = Path(__file__).resolve().parents[1]
+    decorating = {f"{p.parent.name}/{p.name}" for folder in ("slearn", "replay", "recorders")
+                  for p in (root / folder).rglob("*.py") if re.search(r"^@(kernel|helper)\b", p.read_text(), re.M)}
+    assert {"core/online.py", "core/tokens.py", "core/views.py", "io/mcap_scan.py"} <= decorating <= names
     assert "core/_jit.py" in names  # its intrinsic is compiled into the kernels
     assert "slearn/errors.py" not in names
 

@@ -214,3 +214,32 @@ def _tokenize(a, symbols, step_offsets, n_actions):
         out[pos] = _intern(a, OBSERVATION, symbols, split, step_offsets[step + 1])
         pos += 1
     return out
+
+
+@kernel
+def join_steps(table, lib, offsets, tokens, use, buf):
+    """Per step (reports ``offsets[s]..offsets[s + 1]``), the observation token in ``table``
+    of the symbols, in ``lib``, of its used reports' ``tokens`` joined: -2 with none used,
+    -1 when every used report abstained, so a partial prediction joins what was said.
+    ``buf`` holds a step's symbols. (Replay's per-step outcomes; compiled at install, as the
+    core's kernels are.)"""
+    out = np.full(len(offsets) - 1, -2, np.int32)
+    for s in range(len(offsets) - 1):
+        m = 0
+        used = 0
+        said = 0
+        for r in range(offsets[s], offsets[s + 1]):
+            if not use[r]:
+                continue
+            used += 1
+            t = tokens[r]
+            if t < 0:
+                continue
+            said += 1
+            for i in range(lib.offsets[t], lib.offsets[t + 1]):
+                buf[m] = lib.symbols[i]
+                m += 1
+        if used == 0:
+            continue
+        out[s] = -1 if said == 0 else _intern(table, OBSERVATION, buf, 0, m)
+    return out
