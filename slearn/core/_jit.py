@@ -19,6 +19,10 @@ and restored after, so other libraries' kernels in the same process keep their o
 cache. Folders of other fingerprints unused for a week, or beyond the eight most recently
 used, are removed (checkouts of several branches share the base). ``NUMBA_CACHE_DIR`` moves slearn's
 folder under it; ``SLEARN_CACHE_DIR`` sets it outright.
+
+Kernels, and helpers that Python calls, are also compiled at install (``_aot``): each
+dispatcher made here gets those signatures entered, so a fresh install compiles nothing
+for the calls slearn's commands make, and any other call compiles as described above.
 """
 
 from __future__ import annotations
