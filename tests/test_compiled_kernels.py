@@ -161,3 +161,46 @@ def test_the_fingerprint_covers_the_manifest(tmp_path, monkeypatch):
     monkeypatch.setattr(_aot, "MANIFEST", copy)
     assert _aot.fingerprint("sources") != before
     assert _aot.fingerprint("other sources") != _aot.fingerprint("sources")
+
+
+def test_why_the_extension_is_unused_is_named(monkeypatch, fresh_extension_lookup):
+    _extension_or_skip()
+    assert _aot.unused_reason() is None  # used
+    monkeypatch.setattr(_jit, "installed_fingerprint", lambda: "0" * 16)
+    _aot._extension.cache_clear()
+    assert "other sources" in _aot.unused_reason()
+    monkeypatch.setenv("SLEARN_AOT", "0")
+    assert _aot.unused_reason() is None  # asked for: nothing to explain
+
+
+def test_a_cold_cache_that_fills_is_a_compilation_of_this_run(tmp_path, monkeypatch):
+    cold, warm = tmp_path / "cold", tmp_path / "warm"
+    (warm / "core_x").mkdir(parents=True)
+    (warm / "core_x" / "tokens._intern-1.py311.nbi").write_bytes(b"")
+    for folder, was_cold in ((cold, True), (warm, False)):
+        folder.mkdir(exist_ok=True)
+        monkeypatch.setattr(_jit, "_FIRST_FOLDER", [(folder, not any(folder.rglob("*.nbi")))])
+        assert _jit._FIRST_FOLDER[0][1] == was_cold
+        assert not _jit.compiled_this_run()  # nothing new yet
+        (folder / "core_x").mkdir(exist_ok=True)
+        (folder / "core_x" / "hashtable.rebuild-2.py311.nbi").write_bytes(b"")
+        assert _jit.compiled_this_run() == was_cold  # a warm cache that grew compiled a kernel or two
+    monkeypatch.setattr(_jit, "_FIRST_FOLDER", [])
+    assert not _jit.compiled_this_run()  # no kernel looked for its cache
+
+
+@pytest.mark.parametrize("reason, compiled", [("the install compiled none (no C compiler?)", True),
+                                              (None, True), ("the install compiled none (no C compiler?)", False)])
+def test_the_cli_says_once_when_numba_compiled_what_the_install_did_not(monkeypatch, reason, compiled):
+    from click.testing import CliRunner
+
+    from slearn.cli import main
+    monkeypatch.setattr(_aot, "unused_reason", lambda: reason)
+    monkeypatch.setattr(_jit, "compiled_this_run", lambda: compiled)
+    for args, code in ((["datasets", "list"], 0), (["learn", "no-such.mcap", "-o", "x.parquet"], 1)):
+        result = CliRunner().invoke(main, args)
+        assert result.exit_code == code, result.output
+        notes = [line for line in result.stderr.splitlines() if line.startswith("slearn: note: numba compiled")]
+        assert len(notes) == (1 if reason and compiled else 0), result.stderr
+        if notes:
+            assert reason in notes[0] and "--no-build-isolation" in notes[0]

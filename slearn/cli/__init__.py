@@ -70,6 +70,23 @@ class _Group(click.Group):
         except KeyboardInterrupt:
             click.echo("slearn: interrupted", err=True)
             sys.exit(130)
+        finally:
+            compile_notice()
+
+
+def compile_notice() -> None:
+    """One stderr line when numba compiled slearn's kernels on this run, into an empty
+    cache, because the kernels compiled at install were not used (the twenty seconds a
+    user would otherwise wonder about). Nothing when ``SLEARN_AOT=0`` asked for it, or when
+    the command used no kernel."""
+    aot = sys.modules.get("slearn.core._aot")
+    if aot is None:
+        return
+    reason = aot.unused_reason()
+    if reason is not None and sys.modules["slearn.core._jit"].compiled_this_run():
+        click.echo(f"slearn: note: numba compiled slearn's kernels on this run ({reason}); later runs load "
+                   "them from its cache, and `pip install --force-reinstall --no-build-isolation slearn` "
+                   "(or `pip install --no-build-isolation .` in its source) compiles them at install", err=True)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -173,6 +173,17 @@ def _extension():
     return module
 
 
+def unused_reason() -> str | None:
+    """Why the extension is not used, or None: it is, or ``SLEARN_AOT=0`` asked so."""
+    if os.environ.get("SLEARN_AOT", "1") == "0" or _extension() is not None:
+        return None
+    try:
+        importlib.import_module(EXTENSION)
+    except ImportError:
+        return "the install compiled none (no C compiler?)"
+    return "the ones compiled at install come from other sources or another numba"
+
+
 def attach(dispatcher) -> dict:
     """Enter the shipped signatures of ``dispatcher`` into it; the entry points by argument
     types (empty when there are none)."""

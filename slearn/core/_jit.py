@@ -167,9 +167,20 @@ def cache_folder() -> str:
     base = cache_base()
     folder = base / installed_fingerprint()
     folder.mkdir(parents=True, exist_ok=True)
+    if not _FIRST_FOLDER:
+        _FIRST_FOLDER.append((folder, not any(folder.rglob("*.nbi"))))
     folder.touch()
     prune(base, folder)
     return str(folder)
+
+
+_FIRST_FOLDER: list[tuple[Path, bool]] = []  # this process's first cache folder, and whether it was cold
+
+
+def compiled_this_run() -> bool:
+    """Whether this process compiled kernels into a cache folder that held none when it
+    first looked (numba's index files, ``*.nbi``, appear as it compiles)."""
+    return bool(_FIRST_FOLDER) and _FIRST_FOLDER[0][1] and any(_FIRST_FOLDER[0][0].rglob("*.nbi"))
 
 
 def cache_base() -> Path:
