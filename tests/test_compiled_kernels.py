@@ -139,9 +139,9 @@ def test_other_argument_types_are_compiled_not_misread():
 
 @pytest.fixture
 def fresh_extension_lookup():
-    _aot._extension.cache_clear()
+    _aot._lookup.cache_clear()
     yield
-    _aot._extension.cache_clear()
+    _aot._lookup.cache_clear()
 
 
 def test_an_extension_from_other_sources_is_not_used(monkeypatch, fresh_extension_lookup):
@@ -167,26 +167,31 @@ def test_why_the_extension_is_unused_is_named(monkeypatch, fresh_extension_looku
     _extension_or_skip()
     assert _aot.unused_reason() is None  # used
     monkeypatch.setattr(_jit, "installed_fingerprint", lambda: "0" * 16)
-    _aot._extension.cache_clear()
+    _aot._lookup.cache_clear()
     assert "other sources" in _aot.unused_reason()
     monkeypatch.setenv("SLEARN_AOT", "0")
+    _aot._lookup.cache_clear()
     assert _aot.unused_reason() is None  # asked for: nothing to explain
 
 
 def test_a_cold_cache_that_fills_is_a_compilation_of_this_run(tmp_path, monkeypatch):
-    cold, warm = tmp_path / "cold", tmp_path / "warm"
-    (warm / "core_x").mkdir(parents=True)
-    (warm / "core_x" / "tokens._intern-1.py311.nbi").write_bytes(b"")
-    for folder, was_cold in ((cold, True), (warm, False)):
-        folder.mkdir(exist_ok=True)
-        monkeypatch.setattr(_jit, "_FIRST_FOLDER", [(folder, not any(folder.rglob("*.nbi")))])
-        assert _jit._FIRST_FOLDER[0][1] == was_cold
-        assert not _jit.compiled_this_run()  # nothing new yet
-        (folder / "core_x").mkdir(exist_ok=True)
-        (folder / "core_x" / "hashtable.rebuild-2.py311.nbi").write_bytes(b"")
-        assert _jit.compiled_this_run() == was_cold  # a warm cache that grew compiled a kernel or two
-    monkeypatch.setattr(_jit, "_FIRST_FOLDER", [])
+    monkeypatch.setenv("SLEARN_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_jit, "_COLD", [])
     assert not _jit.compiled_this_run()  # no kernel looked for its cache
+    try:
+        for name, was_cold in (("a" * 16, True), ("b" * 16, False)):
+            if not was_cold:
+                (tmp_path / name / "core_x").mkdir(parents=True)
+                (tmp_path / name / "core_x" / "tokens._intern-1.py311.nbi").write_bytes(b"")
+            monkeypatch.setattr(_jit, "installed_fingerprint", lambda: name)
+            _jit.cache_folder.cache_clear()
+            folder = Path(_jit.cache_folder())
+            assert folder == tmp_path / name and not _jit.compiled_this_run()  # nothing new yet
+            (folder / "core_x").mkdir(exist_ok=True)
+            (folder / "core_x" / "hashtable.rebuild-2.py311.nbi").write_bytes(b"")
+            assert _jit.compiled_this_run() == was_cold  # a warm cache that grew compiled a kernel or two
+    finally:
+        _jit.cache_folder.cache_clear()  # (the real folder again, found by the next caller)
 
 
 @pytest.mark.parametrize("reason, compiled", [("the install compiled none (no C compiler?)", True),

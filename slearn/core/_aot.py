@@ -160,28 +160,27 @@ def fingerprint(sources_fingerprint: str) -> str:
 
 
 @lru_cache(maxsize=1)
-def _extension():
-    """The extension module, or None: not built, disabled, or built from other sources."""
+def _lookup() -> tuple[Any, str | None]:
+    """The extension module, or None and why (None when ``SLEARN_AOT=0`` asked for it)."""
     if os.environ.get("SLEARN_AOT", "1") == "0":
-        return None
+        return None, None
     try:
         module = importlib.import_module(EXTENSION)
     except ImportError:
-        return None
+        return None, "the install compiled none (no C compiler?)"
     if not hasattr(module, "fingerprint_" + fingerprint(_jit.installed_fingerprint())):
-        return None
-    return module
+        return None, "the ones compiled at install come from other sources or another numba"
+    return module, None
+
+
+def _extension():
+    """The extension module, or None: not built, disabled, or built from other sources."""
+    return _lookup()[0]
 
 
 def unused_reason() -> str | None:
     """Why the extension is not used, or None: it is, or ``SLEARN_AOT=0`` asked so."""
-    if os.environ.get("SLEARN_AOT", "1") == "0" or _extension() is not None:
-        return None
-    try:
-        importlib.import_module(EXTENSION)
-    except ImportError:
-        return "the install compiled none (no C compiler?)"
-    return "the ones compiled at install come from other sources or another numba"
+    return _lookup()[1]
 
 
 def attach(dispatcher) -> dict:

@@ -167,20 +167,19 @@ def cache_folder() -> str:
     base = cache_base()
     folder = base / installed_fingerprint()
     folder.mkdir(parents=True, exist_ok=True)
-    if not _FIRST_FOLDER:
-        _FIRST_FOLDER.append((folder, not any(folder.rglob("*.nbi"))))
+    _COLD[:] = [] if any(folder.rglob("*.nbi")) else [folder]
     folder.touch()
     prune(base, folder)
     return str(folder)
 
 
-_FIRST_FOLDER: list[tuple[Path, bool]] = []  # this process's first cache folder, and whether it was cold
+_COLD: list[Path] = []  # the cache folder, when it held no compiled kernel as this process found it
 
 
 def compiled_this_run() -> bool:
     """Whether this process compiled kernels into a cache folder that held none when it
-    first looked (numba's index files, ``*.nbi``, appear as it compiles)."""
-    return bool(_FIRST_FOLDER) and _FIRST_FOLDER[0][1] and any(_FIRST_FOLDER[0][0].rglob("*.nbi"))
+    found it (numba's index files, ``*.nbi``, appear as it compiles)."""
+    return bool(_COLD) and any(_COLD[0].rglob("*.nbi"))
 
 
 def cache_base() -> Path:
