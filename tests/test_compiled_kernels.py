@@ -183,7 +183,7 @@ def test_a_cold_cache_that_fills_is_a_compilation_of_this_run(tmp_path, monkeypa
             if not was_cold:
                 (tmp_path / name / "core_x").mkdir(parents=True)
                 (tmp_path / name / "core_x" / "tokens._intern-1.py311.nbi").write_bytes(b"")
-            monkeypatch.setattr(_jit, "installed_fingerprint", lambda: name)
+            monkeypatch.setattr(_jit, "installed_fingerprint", lambda name=name: name)
             _jit.cache_folder.cache_clear()
             folder = Path(_jit.cache_folder())
             assert folder == tmp_path / name and not _jit.compiled_this_run()  # nothing new yet
