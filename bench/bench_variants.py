@@ -85,6 +85,15 @@ VARIANTS = [
     Variant("reversal+error", "reversal+error"),
     Variant("error drift 0-10", "error", {"error_deg": 0.0, "error_end_deg": 10.0}),
     Variant("delay 50k", "delay", {"trials": 50_000}),
+    Variant("bins24 delay", "delay", {"bins": 24}),
+    Variant("delay 0.1", "delay", {"delay_prob": 0.1}),
+    Variant("delay 0.9", "delay", {"delay_prob": 0.9}),
+    Variant("error+delay 0.3", "error+delay", {"delay_prob": 0.3}),
+    Variant("scramble @1000", "scramble", {"switch_trial": 1000}),
+    Variant("scramble @3000 back @7000", "scramble",
+            {"switch_trial": 3000, "switch_back_trial": 7000}),
+    Variant("scramble+error", "scramble+error"),
+    Variant("reversal+delay", "reversal+delay"),
 ] + DEFAULTS
 
 
