@@ -51,7 +51,8 @@ class _Params(ctypes.Structure):
     _fields_ = [("n_views", ctypes.c_int32), ("K", ctypes.c_int32), ("has_actions", ctypes.c_int32),
                 ("empty_action", ctypes.c_int32), ("empty_observation", ctypes.c_int32),
                 ("beta", ctypes.c_double), ("floor_", ctypes.c_double), ("threshold", ctypes.c_double),
-                ("fresh_tie", ctypes.c_double), ("prior", ctypes.c_double), ("octaves", ctypes.c_int32)]
+                ("fresh_tie", ctypes.c_double), ("prior", ctypes.c_double), ("octaves", ctypes.c_int32),
+                ("same", ctypes.c_double)]
 
 
 def load_c_learn(folder: Path, prefetch: bool = False):
@@ -66,7 +67,7 @@ def load_c_learn(folder: Path, prefetch: bool = False):
                    check=True, capture_output=True)
     lib = ctypes.CDLL(str(library))
     lib.slearn_learn.restype = ctypes.c_int64
-    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 14 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
+    lib.slearn_learn.argtypes = [ctypes.c_void_p] * 15 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
     return lib.slearn_learn
 
 
@@ -87,10 +88,11 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
                      float(np.log(1.0 / mixer.FALSE_ALARM)),
-                     float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]), mixer.PRIOR, mixer.OCTAVES)
+                     float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]), mixer.PRIOR, mixer.OCTAVES,
+                     mixer.SAME)
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,
-        mix.calibration.ctypes.data, mix.rounds.ctypes.data,
+        mix.calibration.ctypes.data, mix.rounds.ctypes.data, mix.persist.ctypes.data,
         streams.recent.ctypes.data, streams.filled.ctypes.data, streams.held.ctypes.data,
         streams.root.ctypes.data, *(a.ctypes.data for a in arrays), ctypes.c_int64(len(codes)),
         ctypes.c_int64(0), ctypes.byref(params))

@@ -60,7 +60,9 @@ def test_joints_commanded_at_once_are_learned_from_their_own_commands():
     held_out = busy_walk(5, 9, 600)
     scoped, whole = learned(5, own(5)), learned(5, None)
     assert accuracy(scoped, held_out) == 1.0  # deterministic: each joint from its command
-    assert accuracy(whole, held_out) < 0.8    # 243 command tuples: contexts rarely repeat
+    # 243 command tuples: contexts rarely repeat, and where they were never seen only the
+    # persistence specialist's last reading is right, for the joints a 0 command left (0.87)
+    assert accuracy(whole, held_out) < 0.9
     assert len(scoped.library) < len(whole.library) / 2
 
 
@@ -171,7 +173,7 @@ def test_scopes_are_saved_loaded_and_predict_the_same(tmp_path):
     for i in range(6, len(walk)):
         assert again.predict_step(walk[i - 6:i], walk[i][0]) == model.predict_step(walk[i - 6:i], walk[i][0])
     info = json.loads(pq.read_schema(tmp_path / "m.parquet").metadata[METADATA_KEY])
-    assert info["version"] == 5 and info["params"]["action_scopes"] == {f"p{j}": [f"c{j}"] for j in range(3)}
+    assert info["version"] == 6 and info["params"]["action_scopes"] == {f"p{j}": [f"c{j}"] for j in range(3)}
 
 
 def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
@@ -184,7 +186,7 @@ def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
         doc = json.loads(json.dumps(info))
         change(doc)
         source = pq.ParquetFile(tmp_path / "m.parquet")
-        since = {"view_calibration": 4, "view_rounds": 5}
+        since = {"view_calibration": 4, "view_rounds": 5, "view_persist": 6}
         kept = [c for c in table.column_names if doc["version"] >= since.get(c, 0)]
         schema = pa.schema([table.schema.field(c) for c in kept]).with_metadata({METADATA_KEY: json.dumps(doc)})
         with pq.ParquetWriter(tmp_path / name, schema) as out:
@@ -196,6 +198,7 @@ def test_a_format_2_library_still_loads_and_a_broken_scope_is_refused(tmp_path):
     assert old.format_version == 2 and old.library.action_scopes == {}
     assert not old.library.mixer.calibration.any()  # older files have none: it starts from none
     assert old.library.mixer.rounds.tolist() == [old.library.clock] * len(old.library.view_names)  # their age
+    assert np.all(old.library.mixer.persist == 1.0)  # untrained persistence: the answers speak
     bad = edited(lambda d: d["params"].update(action_scopes={"p0": ["p1"]}), "bad.parquet")
     with pytest.raises(LibraryFormatError, match="params.action_scopes.*'p1' has the role observation"):
         load_library(bad)

@@ -261,7 +261,7 @@ def test_info_describes_a_library(logs, tmp_path):
     assert all(a != b for a, b in zip(channels, channels[1:]))
     assert doc["provenance"]["inputs"][0]["sha256"] == loaded.provenance["inputs"][0]["sha256"]
     text = run("info", out)
-    assert text.exit_code == 0 and "pattern library (format 5)" in text.stdout
+    assert text.exit_code == 0 and "pattern library (format 6)" in text.stdout
     assert top["pattern"] in text.stdout
 
 

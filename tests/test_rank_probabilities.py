@@ -68,7 +68,14 @@ def test_a_ranking_is_ppm_c_from_the_chosen_context_down_and_sums_to_at_most_one
         assert sum(p for _, p in ranked) <= 1 + 1e-12
         assert len({item for item, _ in ranked}) == len(ranked)
         assert [item for item, _ in model.rank(history, k=3)] == [item for item, _ in ranked[:3]]
-        if view.kind != "fresh":  # (fresh experts count since the view's last alarm)
+        if view.kind == "persist":  # the last item again, q on it and 1 - q on the context's ranking
+            expected = expected_ranking(sequences, history, view.length)
+            last = history[-1]
+            rest = (1 - ranked[0][1]) / (1 - expected.get(last, 0.0))  # 1 - q, from p(last) = q + (1 - q) p
+            assert ranked[0][0] == last and 0 < rest < 0.5
+            assert dict(ranked[1:]) == pytest.approx({i: rest * p for i, p in expected.items() if i != last},
+                                                     rel=1e-9)
+        elif view.kind != "fresh":  # (fresh experts count since the view's last alarm)
             expected = expected_ranking(sequences, history, view.length)
             assert dict(ranked) == pytest.approx(expected, rel=1e-12)
 

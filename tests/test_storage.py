@@ -174,7 +174,7 @@ def test_file_layout_patterns_are_token_lists_of_a_view(tmp_path):
     schema = pq.read_schema(tmp_path / "lib.parquet")
     assert schema.field("pattern").type == pa.list_(pa.field("item", pa.int32(), nullable=False))
     info = json.loads(schema.metadata[METADATA_KEY])
-    assert (info["format"], info["version"]) == ("slearn-library", 5)
+    assert (info["format"], info["version"]) == ("slearn-library", 6)
     rows = pq.read_table(tmp_path / "lib.parquet").to_pylist()
     assert [r["table"] for r in rows] == sorted((r["table"] for r in rows),
                                                 key=["vocabulary", "token", "view", "pattern"].index)

@@ -8,7 +8,8 @@
  * context of 1..K tokens just before it is looked up in a tree read backwards from the
  * view's root; the experts of slearn/core/mixer.py (frequent, recent and fresh outcome of each
  * context) are weighed by Hedge with sleeping experts and a spread bound (every log-weight
- * halved when the view's rounds reach a power of two), a Bernoulli
+ * halved when the view's rounds reach a power of two), the view's persistence specialist
+ * (its last reading again) weighed against the chosen expert's answer per context length, a Bernoulli
  * CUSUM watches the trusted frequency expert (each prediction's expected miss rate from
  * PPM-C's estimate in its context, calibrated by the hits of its cell: the octaves of the
  * context's count and of the odds against a miss), and every context counts one more
@@ -194,6 +195,49 @@ static void update(double *w, int64_t *rounds, const int32_t *cand, int n, int K
     }
 }
 
+/* The expert that speaks (mixer.select): the awake expert of largest weight, a missing
+ * context's expert lending its weight to its shorter twins; then the longest context of
+ * the leader's kind less than one mistake behind it and not tied with it. */
+static void select_expert(const double *w, const int32_t *cand, int n, int K, double beta, double same,
+                          int *k_out, int *kind_out) {
+    double best_w = -1.0, lent[KINDS] = {0.0};
+    int best_k = 0, best_kind = 0;
+    for (int k = K; k >= 1; k--)
+        for (int kind = 0; kind < KINDS; kind++) {
+            double x = w[(k - 1) * KINDS + kind] > lent[kind] ? w[(k - 1) * KINDS + kind] : lent[kind];
+            if (k <= n && cand[k * KINDS + kind] >= 0) {
+                if (x > best_w) best_w = x, best_k = k, best_kind = kind;
+            } else {
+                lent[kind] = x;
+            }
+        }
+    for (int k = n < K ? n : K; k > best_k; k--) {
+        double x = w[(k - 1) * KINDS + best_kind];
+        if (cand[k * KINDS + best_kind] >= 0 && best_w * beta < x && x < best_w * (1.0 - same)) {
+            best_k = k;
+            break;
+        }
+    }
+    *k_out = best_k, *kind_out = best_kind;
+}
+
+/* The persistence specialists (mixer.update_persist), after update counted round t. */
+static void update_persist(double *p, int64_t t, int K, int length, int32_t said, int32_t last, int32_t truth,
+                           double beta, double floor_) {
+    if (t > 1 && (t & (t - 1)) == 0)
+        for (int k = 0; k < K; k++) p[k] = sqrt(p[k]);
+    if (last < 0 || length <= 0) return;
+    double x = p[length - 1];
+    if (last == truth && said != truth) {
+        x = x / beta;
+        if (x > 1.0 / floor_) x = 1.0 / floor_;
+    } else if (last != truth && said == truth) {
+        x = x * beta;
+        if (x < floor_) x = floor_;
+    }
+    p[length - 1] = x;
+}
+
 static int trusted_length(const double *w, const int32_t *cand, int n, int32_t epoch) {
     int kind = epoch == 0 ? FREQUENT : FRESH;
     double best = -1.0;
@@ -251,10 +295,11 @@ typedef struct {
     int32_t n_views, K, has_actions, empty_action, empty_observation;
     double beta, floor_, threshold, fresh_tie, prior;
     int32_t octaves;
+    double same;
 } params_t;
 
 int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoch, int64_t *calibration,
-                     int64_t *rounds, int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
+                     int64_t *rounds, double *persist, int32_t *recent, int64_t *filled, int32_t *held, const int32_t *root,
                      const int32_t *action, const int64_t *offsets, const int32_t *view,
                      const int32_t *token, int64_t n_steps, int64_t clock, const params_t *p) {
     int K = p->K;
@@ -313,7 +358,12 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                 }
                 for (int k = 1; k <= n; k++) FETCH(&t->entry_slots[home(nodes[k], x, t->entry_slot_count)]);
                 double *w = &weights[(int64_t)v * K * KINDS];
+                int k_sel = 0, kind = 0;
+                if (m > 0) select_expert(w, cand, m, K, p->beta, p->same, &k_sel, &kind);
                 update(w, &rounds[v], cand, m, K, x, p->beta, p->floor_);
+                if (m > 0)
+                    update_persist(&persist[(int64_t)v * K], rounds[v], K, k_sel, cand[k_sel * KINDS + kind], held[v],
+                                   x, p->beta, p->floor_);
                 int kt = trusted_length(w, cand, m, ep), alarm = 0;
                 if (kt > 0) {
                     int32_t nd = nodes[kt], b = ep > 0 ? t->fresh_best[nd] : t->best[nd];

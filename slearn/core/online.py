@@ -41,7 +41,20 @@ from slearn.core.context_tree import (
     weight_sums,
 )
 from slearn.core.hashtable import EMPTY, probe
-from slearn.core.mixer import CUSUM, FREQUENT, FRESH, KINDS, N_KINDS, RECENT, detect, select, trusted_length, update
+from slearn.core.mixer import (
+    CUSUM,
+    FREQUENT,
+    FRESH,
+    KINDS,
+    N_KINDS,
+    RECENT,
+    detect,
+    persists,
+    select,
+    trusted_length,
+    update,
+    update_persist,
+)
 from slearn.core.views import NO_ACTIONS, NO_TOKEN
 
 
@@ -49,8 +62,10 @@ class Reports(NamedTuple):
     """Per report (a view's observation at a step): what was predicted.
 
     ``predicted`` is the predicted observation token (-1: abstained, or no context yet),
-    ``length`` the chosen context's length in tokens (-1), ``kind`` the expert kind,
-    ``score`` the chosen context's share behind the prediction, ``truth_p`` its share
+    ``length`` the chosen context's length in tokens (-1), ``kind`` the expert kind
+    (:data:`REPORT_KINDS`; :data:`PERSIST` when the view's persistence specialist said
+    its last observation instead of the chosen context's expert), ``score`` the chosen
+    context's share behind the prediction, ``truth_p`` its share
     behind what happened, ``top`` the ranked tokens (-1 padded) and ``top_p`` the
     probability of each (``record_prediction``: PPM's method C from the chosen context
     down; they sum to at most 1), ``context`` whether the view had any history
@@ -92,8 +107,12 @@ def new_reports(n: int, top_k: int) -> Reports:
 
 HOLD = N_KINDS
 """The ``kind`` of a report that holds the view's last observation (no expert spoke)."""
-REPORT_KINDS = (*KINDS, "hold")
-"""Names of a report's ``kind``: the experts of :mod:`slearn.core.mixer`, then :data:`HOLD`."""
+PERSIST = N_KINDS + 1
+"""The ``kind`` of a report where the view's persistence specialist spoke
+(:func:`slearn.core.mixer.persists`): the last observation again, by its record."""
+REPORT_KINDS = (*KINDS, "hold", "persist")
+"""Names of a report's ``kind``: the experts of :mod:`slearn.core.mixer`, :data:`HOLD`,
+:data:`PERSIST`."""
 
 
 class Run(NamedTuple):
@@ -152,7 +171,7 @@ def run_codes(tree, mixer, views, past, action, scoped, offsets, view, token, st
     owner, outcome, count, last_seen = tree.owner, tree.outcome, tree.count, tree.last_seen
     fresh, nxt, entry_slots, size = tree.fresh, tree.next, tree.entry_slots, tree.size
     fresh_total, fresh_outcomes = tree.fresh_total, tree.fresh_outcomes
-    weights, detector, epoch, calibration, rounds = mixer
+    weights, detector, epoch, calibration, rounds, persist = mixer
     recent, filled, held, root, scope = views.recent, views.filled, views.held, views.root, views.scope
     past_node, past_outcome, past_filled, since = past.node, past.outcome, past.filled, past.since
     K = weights.shape[1]  # the longest context, in tokens
@@ -212,16 +231,25 @@ def run_codes(tree, mixer, views, past, action, scoped, offsets, view, token, st
                     order = 2 if run.has_actions else 1
                     if m >= order:
                         out.frequency[r] = cand[order, FREQUENT]
-                if run.record and m > 0:
+                k_sel, kind = 0, 0
+                if m > 0 and (run.record or learn):
                     k_sel, kind, _ = select(weights, v, cand, m)
-                    record_prediction(out, r, nodes[k_sel], kind, k_sel, cand[k_sel, kind], x, first, nxt,
+                if run.record and m > 0:
+                    persisting = persists(persist, v, k_sel, held[v])
+                    said = held[v] if persisting else cand[k_sel, kind]
+                    record_prediction(out, r, nodes[k_sel], kind, k_sel, said, x, first, nxt,
                                       count, fresh, last_seen, outcome, nodes, m, ranked)
+                    if persisting:
+                        record_persistence(out, r, persist[v, k_sel - 1], said, x, first, nxt, count, fresh,
+                                           outcome, nodes, kind, k_sel)
                 elif run.record and run.hold and held[v] >= 0:
                     record_hold(out, r, held[v])
                 if learn:
                     if fetch_entry:
                         fetch_entry_slots(entry_slots, nodes, n, x)
                     update(weights, rounds, v, cand, m, x)
+                    if m > 0:
+                        update_persist(persist, rounds, v, k_sel, cand[k_sel, kind], held[v], x)
                     kt = trusted_length(weights, v, cand, m, ep)
                     alarm = False
                     if kt > 0:
@@ -352,6 +380,35 @@ def record_prediction(out, r, node, kind, length, said, truth, first, nxt, count
             top[r, j], top_p[r, j] = top[r, j - 1], top_p[r, j - 1]
             j -= 1
         top[r, j], top_p[r, j] = t, p
+
+
+@helper
+def record_persistence(out, r, odds, last, truth, first, nxt, count, fresh, outcome, nodes, kind, length):
+    """Turn report ``r``, recorded by :func:`record_prediction` with the view's last
+    observation ``last`` as what it says, into the persistence specialist's: the two
+    experts' mixture, ``q = odds / (1 + odds)`` on ``last`` (``odds`` the specialist's
+    weight over the answer's) and ``1 - q`` on the ranking of the chosen context down, in
+    which ``last`` has what PPM's method C gives it along the chain (:func:`record_prediction`)."""
+    q = odds / (1.0 + odds)
+    mass, p_last = 1.0, 0.0
+    for k in range(length, 0, -1):
+        w = fresh if (kind == FRESH and k == length) else count
+        total, distinct = weight_sums(first, nxt, w, nodes[k])
+        if total <= 0:
+            continue
+        e = first[nodes[k]]
+        while e != -1 and not (outcome[e] == last and w[e] > 0):
+            e = nxt[e]
+        if e != -1:
+            p_last = mass * w[e] / (total + distinct)
+            break
+        mass *= distinct / (total + distinct)
+    out.top_p[r, 0] = q + (1.0 - q) * p_last
+    for i in range(1, out.top.shape[1]):
+        out.top_p[r, i] *= 1.0 - q
+    out.score[r] = out.top_p[r, 0]
+    out.truth_p[r] = (q if truth == last else 0.0) + (1.0 - q) * out.truth_p[r]
+    out.kind[r] = PERSIST
 
 
 @helper

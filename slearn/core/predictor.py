@@ -55,7 +55,9 @@ class ViewPrediction:
         observations: the predicted observation symbols, ``None`` when abstaining.
         score: the chosen context's share behind the prediction.
         length: the chosen context's length in tokens (-1 when abstaining).
-        kind: which expert spoke (``frequent``, ``recent``, ``fresh``), or ``hold`` when no
+        kind: which expert spoke (``frequent``, ``recent``, ``fresh``), ``persist`` when the
+            view's persistence specialist said its last reading again (it outweighed the
+            chosen expert: :func:`slearn.core.mixer.persists`), or ``hold`` when no
             context of the present was ever seen and a spec's channel holds its last reading
             (no share); ``""`` abstaining.
         ranked: ``(observations, probability)``: the prediction first, then the others by

@@ -18,8 +18,16 @@ import numpy as np
 from slearn.core._jit import helper, kernel
 from slearn.core.addresses import address_table, cube, matrix, vector
 from slearn.core.context_tree import Tree, child, path_hash, root_path
-from slearn.core.mixer import BETA, N_KINDS, Mixer, heaviest_beyond, select
-from slearn.core.online import Reports, candidates, hold_silent, new_reports, record_hold, record_prediction
+from slearn.core.mixer import BETA, N_KINDS, Mixer, heaviest_beyond, persists, select
+from slearn.core.online import (
+    Reports,
+    candidates,
+    hold_silent,
+    new_reports,
+    record_hold,
+    record_persistence,
+    record_prediction,
+)
 from slearn.core.views import NO_ACTIONS, NO_TOKEN, UNKNOWN, ViewState, new_view_state
 
 
@@ -198,7 +206,7 @@ def predict_queries(table):
                 vector(table, t + 12, i64), vector(table, t + 13, i32), vector(table, t + 14, i32),
                 vector(table, t + 15, i64), vector(table, t + 16, i32), vector(table, t + 17, i32))
     mixer = Mixer(cube(table, m, f64), matrix(table, m + 1, f64), vector(table, m + 2, i32),
-                  cube(table, m + 3, i64), vector(table, m + 4, i64))
+                  cube(table, m + 3, i64), vector(table, m + 4, i64), matrix(table, m + 5, f64))
     scratch = ViewState(matrix(table, sc, i32), vector(table, sc + 1, i64), vector(table, sc + 2, i32),
                         vector(table, sc + 3, i32), vector(table, sc + 4, i32))
     out = Reports(vector(table, o, i32), vector(table, o + 1, i32), vector(table, o + 2, np.int8),
@@ -208,7 +216,7 @@ def predict_queries(table):
     parent, tok_of, first, best, newest = tree.parent, tree.token, tree.first, tree.best, tree.newest
     fresh_best, node_epoch, node_slots = tree.fresh_best, tree.epoch, tree.node_slots
     outcome, count, last_seen, fresh, nxt = tree.outcome, tree.count, tree.last_seen, tree.fresh, tree.next
-    weights, epoch = mixer.weight, mixer.epoch
+    weights, epoch, persist = mixer.weight, mixer.epoch, mixer.persist
     recent, filled, held, root, scope = scratch.recent, scratch.filled, scratch.held, scratch.root, scratch.scope
     K = weights.shape[1]  # the longest context, in tokens
     M = recent.shape[1] - 1  # a token's place in its ring: a mask (ViewState)
@@ -292,6 +300,17 @@ def predict_queries(table):
                                            epoch[v], cand)
                         whole = True
                         k_sel, kind, heaviest = select(weights, v, cand, found)
+                    if persists(persist, v, k_sel, held[v]):  # (not remembered: the slot is given up)
+                        if not whole:  # the ranking reads every context found, as run_codes' does
+                            n = _descend(node_slots, parent, tok_of, recent, filled, v, nodes, hashes, n, depth)
+                            found = candidates(first, best, newest, fresh_best, node_epoch, outcome, nodes, n,
+                                               epoch[v], cand)
+                        record_prediction(out, r, nodes[k_sel], kind, k_sel, held[v], UNKNOWN, first, nxt,
+                                          count, fresh, last_seen, outcome, nodes, found, ranked)
+                        record_persistence(out, r, persist[v, k_sel - 1], held[v], UNKNOWN, first, nxt, count,
+                                           fresh, outcome, nodes, kind, k_sel)
+                        memo_depth[slot] = -1
+                        continue
                     key = np.int64(nodes[k_sel]) * N_KINDS + kind
                     rank_slot = key & (size - 1)
                     if rank_key[rank_slot] == key:

@@ -1,10 +1,11 @@
 """Pattern libraries on disk: one Parquet file holds a library, its vocabulary and its spec.
 
-Layout (format ``slearn-library``, version 5; version 4 files, which have no
-``view_rounds``, version 3 files, which also have no ``view_calibration``, and version 2
-files, which also have no action scopes, are read too: their views' rounds taken as the
-library's clock where the weights were trained, their detectors' calibration starting
-from none). Four tables share one
+Layout (format ``slearn-library``, version 6; version 5 files, which have no
+``view_persist``, version 4 files, which also have no ``view_rounds``, version 3 files,
+which also have no ``view_calibration``, and version 2 files, which also have no action
+scopes, are read too: their persistence specialists start untrained, their views' rounds
+are taken as the library's clock where the weights were trained, their detectors'
+calibration starts from none). Four tables share one
 schema; a row belongs to the table named in its ``table`` column, each table has its own
 row groups (written in this order) and the columns of the other tables are null::
 
@@ -24,6 +25,7 @@ row groups (written in this order) and the columns of the other tables are null:
     view_weights    list<float64>  view        expert weights over the leader, (context length, kind)
     view_calibration list<int64>   view        the test's hits and trials per calibration cell
     view_rounds     int64          view        the view's weight updates (mixer rounds)
+    view_persist    list<float64>  view        persistence specialists over the answer, per context length
     view            int32          pattern     the view the pattern belongs to
     pattern         list<int32>    pattern     tokens: the context, oldest first, then the outcome
     parent          int32          pattern     literal libraries: row of the prefix, -1
@@ -90,6 +92,7 @@ SCHEMA = pa.schema([
     ("view_weights", _FLOAT64),
     ("view_calibration", _INT64),
     ("view_rounds", pa.int64()),
+    ("view_persist", _FLOAT64),
     ("view", pa.int32()),
     ("pattern", _INT32),
     ("parent", pa.int32()),
@@ -98,7 +101,8 @@ SCHEMA = pa.schema([
     ("fresh", pa.int64()),
 ])
 _INT64_RANGE = (-(1 << 63), (1 << 63) - 1)
-_SINCE = {"view_calibration": 4, "view_rounds": 5}  # columns added after version 2, by the version that added them
+# columns added after version 2, by the version that added them
+_SINCE = {"view_calibration": 4, "view_rounds": 5, "view_persist": 6}
 
 
 @dataclass
@@ -284,6 +288,8 @@ def _view_table(library) -> pa.Table:
         "view_calibration": _list_array(np.arange(n + 1) * 2 * CELLS, mixer.calibration[:n].ravel(),
                                         Path("<views>"), _INT64),
         "view_rounds": pa.array(mixer.rounds[:n], pa.int64()),
+        "view_persist": _list_array(np.arange(n + 1) * mixer.persist.shape[1], mixer.persist[:n].ravel(),
+                                    Path("<views>"), _FLOAT64),
     })
 
 
@@ -487,9 +493,11 @@ def _read_tokens(parquet: pq.ParquetFile, groups: list[int], n_symbols: int, pat
 def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, version: int,
                 clock: int, path: Path) -> tuple[list[str], Mixer]:
     calibrated, counted = version >= _SINCE["view_calibration"], version >= _SINCE["view_rounds"]
+    persisting = version >= _SINCE["view_persist"]
     table = _read(parquet, groups, ["channel", "view_epoch", "view_detector", "view_weights",
                                     *(["view_calibration"] if calibrated else []),
-                                    *(["view_rounds"] if counted else [])])
+                                    *(["view_rounds"] if counted else []),
+                                    *(["view_persist"] if persisting else [])])
     names = table.column("channel").to_pylist()
     n = len(names)
     _, detector = _list_parts(table.column("view_detector"), "view_detector", path)
@@ -511,8 +519,14 @@ def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, ve
         rounds = np.where(trained, max(clock, 0), 0).astype(np.int64)
     if np.any(rounds < 0):
         raise LibraryFormatError(f"{path}: a view's rounds are negative: re-create the library")
+    persist = _list_parts(table.column("view_persist"), "view_persist", path)[1].astype(np.float64) \
+        if persisting else new_mixer(n, max_context).persist.ravel()
+    if len(persist) != max_context * n or not np.all((persist > 0) & (persist < np.inf)):
+        raise LibraryFormatError(f"{path}: the view table's persistence weights are not {max_context} "
+                                 f"positive numbers per view: re-create the library")
     return names, Mixer(weights, detector.astype(np.float64).reshape(n, 3), epoch,
-                        calibration.astype(np.int64).reshape(n, CELLS, 2), rounds)
+                        calibration.astype(np.int64).reshape(n, CELLS, 2), rounds,
+                        persist.reshape(n, max_context))
 
 
 def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,

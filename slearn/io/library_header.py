@@ -27,9 +27,10 @@ from slearn.core.library import MAX_PATTERNS as MAX_BOUND
 from slearn.errors import LibraryFormatError, SpecError
 
 FORMAT_NAME = "slearn-library"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 OLDEST_READ = 2
-"""The oldest format version read: version 4 is version 5 without the views' rounds,
+"""The oldest format version read: version 5 is version 6 without the views' persistence
+specialists, version 4 is version 5 without the views' rounds,
 version 3 is version 4 without the detectors' calibration counts, version 2 is version 3
 without action scopes."""
 TABLES = ("vocabulary", "token", "view", "pattern")

@@ -225,23 +225,25 @@ def _merged_occurrences(a: PatternLibrary, b: PatternLibrary, tokens: TokenTable
 
 def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
                   view_map: np.ndarray) -> Mixer:
-    """The views' scoring state: weights and test of the later library where it trained
-    them, alarms (so epochs) and calibration counts summed."""
+    """The views' scoring state: weights, persistence specialists and test of the later
+    library where it trained them, alarms (so epochs) and calibration counts summed."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
     weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
     epoch, calibration, rounds = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64), np.zeros(n, np.int64)
+    persist = np.ones((n, k))
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
-        calibration[:na], rounds[:na] = ma.calibration[:na], ma.rounds[:na]
+        calibration[:na], rounds[:na], persist[:na] = ma.calibration[:na], ma.rounds[:na], ma.persist[:na]
     if mb is not None:
         for i, j in enumerate(view_map.tolist()):
             if mb.rounds[i] > 0:  # b predicted in the view: its weights are the latest
                 weights[j], detector[j], rounds[j] = mb.weight[i], mb.detector[i], mb.rounds[i]
+                persist[j] = mb.persist[i]
             epoch[j] += mb.epoch[i]
             calibration[j] += mb.calibration[i]
-    return Mixer(weights, detector, epoch, calibration, rounds)
+    return Mixer(weights, detector, epoch, calibration, rounds, persist)
 
 
 def _merged_literal(a: LiteralLibrary, b: LiteralLibrary, tokens: TokenTable,
