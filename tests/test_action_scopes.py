@@ -56,13 +56,17 @@ def learned(joints: int, scopes, train: int = 3000, seed: int = 0) -> SequenceMo
     return model
 
 
-def test_joints_commanded_at_once_are_learned_from_their_own_commands():
+def test_joints_commanded_at_once_are_learned_from_their_own_commands(tmp_path):
     held_out = busy_walk(5, 9, 600)
     scoped, whole = learned(5, own(5)), learned(5, None)
     assert accuracy(scoped, held_out) == 1.0  # deterministic: each joint from its command
     # 243 command tuples: contexts rarely repeat, and where they were never seen only the
     # persistence specialist's last reading is right, for the joints a 0 command left (0.87)
     assert accuracy(whole, held_out) < 0.9
+    whole.save(tmp_path / "whole.parquet")
+    counts_only = SequenceModel.load(tmp_path / "whole.parquet")  # without it: the counts alone
+    counts_only.library.mixer = counts_only.library.mixer._replace(persist=np.ones_like(whole.library.mixer.persist))
+    assert accuracy(counts_only, held_out) < 0.8
     assert len(scoped.library) < len(whole.library) / 2
 
 

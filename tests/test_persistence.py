@@ -126,7 +126,7 @@ def sticky_model(seed: int, steps: int, stay: float) -> SequenceModel:
     return model
 
 
-def test_it_is_saved_merged_with_the_later_weights_and_checked_on_load(tmp_path):
+def test_it_is_saved_and_merged_with_the_later_weights(tmp_path):
     a, b = sticky_model(6, 500, 0.6), sticky_model(7, 300, 0.9)
     a.save(tmp_path / "a.parquet")
     b.save(tmp_path / "b.parquet")
@@ -136,12 +136,16 @@ def test_it_is_saved_merged_with_the_later_weights_and_checked_on_load(tmp_path)
     merged = merge_libraries(la, lb).library.mixer
     assert np.array_equal(merged.persist, b.library.mixer.persist)  # as the weights: the later library's
 
+
+@pytest.mark.parametrize("damage", [lambda r: [-x for x in r], lambda r: r[:-1], lambda r: [float("nan")] * len(r)])
+def test_damaged_persistence_weights_are_refused_naming_the_file(tmp_path, damage):
+    sticky_model(6, 200, 0.6).save(tmp_path / "a.parquet")
     source = pq.ParquetFile(tmp_path / "a.parquet")
     with pq.ParquetWriter(tmp_path / "bad.parquet", source.schema_arrow) as out:
         for group in range(source.num_row_groups):
             table = source.read_row_group(group)
             index = table.schema.get_field_index("view_persist")
-            column = [None if r is None else [-x for x in r] for r in table.column(index).to_pylist()]
+            column = [None if r is None else damage(r) for r in table.column(index).to_pylist()]
             out.write_table(table.set_column(index, table.schema.field(index),
                                              pa.array(column, table.schema.field(index).type)))
     with pytest.raises(LibraryFormatError, match=r"bad\.parquet: the view table's persistence weights"):

@@ -276,6 +276,12 @@ def _first_awake(cand, n, kind, K):
 
 
 @helper
+def halving(t):
+    """Whether round ``t`` of a view halves its log-weights: a power of two past the first."""
+    return t > 1 and t & (t - 1) == 0
+
+
+@helper
 def update(w, rounds, v, cand, n, truth):
     """Hedge's sleeping-experts step (a missing context's expert says what its longest
     shorter twin found says), then the leader rescaled to 1 and the spread bound;
@@ -283,8 +289,7 @@ def update(w, rounds, v, cand, n, truth):
     if n == 0:
         return
     rounds[v] += 1
-    t = rounds[v]
-    if t > 1 and t & (t - 1) == 0:
+    if halving(rounds[v]):
         for k in range(w.shape[1]):
             for kind in range(N_KINDS):
                 w[v, k, kind] = np.sqrt(w[v, k, kind])
@@ -330,8 +335,7 @@ def update_persist(persist, rounds, v, length, said, last, truth):
     """After each :func:`update` that counted a round (``rounds[v]``): the log-weights
     halved when the round is a power of two, then the two-expert Hedge of the answer
     ``said`` from a context of ``length`` and the last reading ``last`` (none: -1)."""
-    t = rounds[v]
-    if t > 1 and t & (t - 1) == 0:
+    if halving(rounds[v]):
         for k in range(persist.shape[1]):
             persist[v, k] = np.sqrt(persist[v, k])
     if last < 0 or length <= 0:

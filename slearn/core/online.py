@@ -396,11 +396,9 @@ def record_persistence(out, r, odds, last, truth, first, nxt, count, fresh, outc
         total, distinct = weight_sums(first, nxt, w, nodes[k])
         if total <= 0:
             continue
-        e = first[nodes[k]]
-        while e != -1 and not (outcome[e] == last and w[e] > 0):
-            e = nxt[e]
-        if e != -1:
-            p_last = mass * w[e] / (total + distinct)
+        share = _share(first, nxt, w, outcome, nodes[k], last, total)
+        if share > 0.0:
+            p_last = mass * share * total / (total + distinct)
             break
         mass *= distinct / (total + distinct)
     out.top_p[r, 0] = q + (1.0 - q) * p_last
