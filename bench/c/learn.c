@@ -282,9 +282,12 @@ static int detect(double *w, double *det, int64_t *cal, int K, int hit, int64_t 
     det[2] += 1.0;
     if (det[0] < threshold) return 0;
     det[0] = det[1] = det[2] = 0.0;
-    for (int k = 0; k < K; k++) {
-        double a = w[k * KINDS + FREQUENT], b = w[k * KINDS + FRESH];
-        w[k * KINDS + FRESH] = (a > b ? a : b) * fresh_tie;
+    for (int k = 0; k < K; k++) {  /* each length's best weight: fresh counts first, all-time just below */
+        double a = w[k * KINDS + FREQUENT], r = w[k * KINDS + RECENT], b = w[k * KINDS + FRESH];
+        double best = a > r ? a : r;
+        best = best > b ? best : b;
+        w[k * KINDS + FRESH] = best;
+        w[k * KINDS + FREQUENT] = best * fresh_tie;
     }
     return 1;
 }
