@@ -51,7 +51,7 @@ class _Params(ctypes.Structure):
     _fields_ = [("n_views", ctypes.c_int32), ("K", ctypes.c_int32), ("has_actions", ctypes.c_int32),
                 ("empty_action", ctypes.c_int32), ("empty_observation", ctypes.c_int32),
                 ("beta", ctypes.c_double), ("floor_", ctypes.c_double), ("threshold", ctypes.c_double),
-                ("fresh_tie", ctypes.c_double), ("prior", ctypes.c_double), ("octaves", ctypes.c_int32),
+                ("below", ctypes.c_double), ("prior", ctypes.c_double), ("octaves", ctypes.c_int32),
                 ("same", ctypes.c_double)]
 
 
@@ -88,7 +88,7 @@ def c_library(c_learn, template: PatternLibrary, codes, nodes: int, entries: int
     params = _Params(len(out.view_names), out.max_context, int(out.has_actions), out.empty_action,
                      out.empty_observation, float(np.exp(-mixer.ETA)), float(np.exp(-mixer.SPREAD)),
                      float(np.log(1.0 / mixer.FALSE_ALARM)),
-                     float(mixer._TIE[mixer.FRESH] / mixer._TIE[mixer.FREQUENT]), mixer.PRIOR, mixer.OCTAVES,
+                     mixer._BELOW, mixer.PRIOR, mixer.OCTAVES,
                      mixer.SAME)
     out.clock_array[0] = c_learn(
         ctypes.byref(struct), mix.weight.ctypes.data, mix.detector.ctypes.data, mix.epoch.ctypes.data,

@@ -209,6 +209,31 @@ def _merged_by_rebuilding(la: LoadedLibrary, lb: LoadedLibrary) -> PatternLibrar
     return merged
 
 
+def test_a_view_neither_library_trained_merges_untrained():
+    # b brings a view it never predicted in (rounds 0): one run over both would leave its
+    # scoring state as a new library has it, the tie-breaking prior included (until
+    # 2026-12-07 its weights merged as zeros)
+    from types import SimpleNamespace
+
+    from slearn.core.mixer import new_mixer
+    from slearn.jobs.merge import _merged_mixer
+
+    trained = new_mixer(1, 3)
+    trained.weight[:] = 0.5
+    trained.rounds[:] = 7
+    b_mixer = new_mixer(2, 3)
+    b_mixer.weight[0] = 0.25
+    b_mixer.rounds[0] = 3
+    a = SimpleNamespace(mixer=trained, view_names=["x"], max_context=3)
+    b = SimpleNamespace(mixer=b_mixer, view_names=["x", "y"], max_context=3)
+    merged = _merged_mixer(a, b, ["x", "y"], np.array([0, 1], np.int32))
+    untrained = new_mixer(1, 3)
+    np.testing.assert_array_equal(merged.weight[0], b_mixer.weight[0])  # b trained x last
+    assert merged.rounds[0] == 3
+    for field, fresh in zip(merged, untrained):
+        np.testing.assert_array_equal(field[1], fresh[0])
+
+
 @pytest.mark.parametrize("case", ["pointer", "alarms", "new view", "live first"])
 def test_a_merge_in_place_is_the_rebuilt_merge(case):
     # merge_libraries rebases the first library (consume=True: in place, else a copy) instead of

@@ -266,7 +266,7 @@ static int calibration_cell(int64_t c, int64_t total, int64_t distinct, int octa
 }
 
 static int detect(double *w, double *det, int64_t *cal, int K, int hit, int64_t c, int64_t total,
-                  int64_t distinct, double threshold, double fresh_tie, double prior, int octaves) {
+                  int64_t distinct, double threshold, double below, double prior, int octaves) {
     if (total <= 0) return 0;
     int64_t *cell = &cal[2 * calibration_cell(c, total, distinct, octaves)];
     double share = (double)c / (double)(total + distinct);
@@ -287,7 +287,7 @@ static int detect(double *w, double *det, int64_t *cal, int K, int hit, int64_t 
         double best = a > r ? a : r;
         best = best > b ? best : b;
         w[k * KINDS + FRESH] = best;
-        w[k * KINDS + FREQUENT] = best * fresh_tie;
+        w[k * KINDS + FREQUENT] = best * below;
     }
     return 1;
 }
@@ -296,7 +296,7 @@ static int detect(double *w, double *det, int64_t *cal, int K, int hit, int64_t 
 
 typedef struct {
     int32_t n_views, K, has_actions, empty_action, empty_observation;
-    double beta, floor_, threshold, fresh_tie, prior;
+    double beta, floor_, threshold, below, prior;
     int32_t octaves;
     double same;
 } params_t;
@@ -374,7 +374,7 @@ int64_t slearn_learn(tree_t *t, double *weights, double *detector, int32_t *epoc
                     int64_t total, distinct;
                     weight_sums(t, weight, nd, &total, &distinct);
                     alarm = detect(w, &detector[v * 3], &calibration[(int64_t)v * 2 * p->octaves * p->octaves], K,
-                                   t->outcome[b] == x, weight[b], total, distinct, p->threshold, p->fresh_tie,
+                                   t->outcome[b] == x, weight[b], total, distinct, p->threshold, p->below,
                                    p->prior, p->octaves);
                 }
                 if (alarm) {

@@ -40,7 +40,7 @@ import numpy as np
 from slearn import __version__
 from slearn.core.library import FORGET_TO, PatternLibrary
 from slearn.core.literal import LiteralLibrary
-from slearn.core.mixer import CELLS, Mixer, new_mixer
+from slearn.core.mixer import Mixer, new_mixer
 from slearn.core.tokens import TokenTable
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, SpecError
@@ -229,9 +229,7 @@ def _merged_mixer(a: PatternLibrary, b: PatternLibrary, names: list[str],
     library where it trained them, alarms (so epochs) and calibration counts summed."""
     ma, mb = a.mixer, b.mixer
     n, k = len(names), a.max_context
-    weights, detector = np.zeros((n, k, 3)), np.zeros((n, 3))
-    epoch, calibration, rounds = np.zeros(n, np.int32), np.zeros((n, CELLS, 2), np.int64), np.zeros(n, np.int64)
-    persist = np.ones((n, k))
+    weights, detector, epoch, calibration, rounds, persist = new_mixer(n, k)  # untrained where neither trained
     if ma is not None:
         na = len(a.view_names)
         weights[:na], detector[:na], epoch[:na] = ma.weight[:na], ma.detector[:na], ma.epoch[:na]
