@@ -12,7 +12,8 @@ The scoring state depends on the order of predictions, so it follows a rule:
 
 * the expert weights, the persistence specialists, the change detector and the rounds
   of a view (the weights' age, :mod:`slearn.core.mixer`) are ``b``'s when ``b`` predicted
-  anything in the view (they were trained on the latest data), else ``a``'s;
+  anything in the view (they were trained on the latest data), else ``a``'s (a new
+  library's, where ``a`` does not have the view either);
 * the detector's calibration counts (hits and trials per cell, over all time) add, as
   they would in one run (the predictions behind them differ in ``b``, which started
   from empty);
