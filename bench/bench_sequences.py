@@ -187,7 +187,12 @@ def public_datasets(folder: Path) -> tuple[list[Dataset], list[str]]:
         if path is None:
             notes.append(f"{name}: none of {', '.join(f for f, _ in candidates)} in {folder}")
             continue
-        found.append(Dataset(f"{name}", _select(reader(path), profile, repeats), profile))
+        sequences = _select(reader(path), profile, repeats)
+        if not sequences:
+            notes.append(f"{name}: {path} holds no sequence of {profile.min_size} items or more"
+                         " (an empty or partial download?): left out")
+            continue
+        found.append(Dataset(f"{name}", sequences, profile))
     return found, notes
 
 

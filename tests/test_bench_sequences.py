@@ -27,6 +27,16 @@ def test_spmf_and_ipredict_files_are_read_as_ipredict_reads_them(tmp_path):
     assert len(notes) == 1 and notes[0].startswith("MSNBC")
 
 
+def test_an_empty_or_short_public_file_is_left_out_with_a_note(tmp_path):
+    (tmp_path / "msnbc.seq").write_text("")  # a download that failed
+    (tmp_path / "BMS.dat").write_text("1 1\n1 2\n")  # one sequence, shorter than min_size
+    found, notes = bench.public_datasets(tmp_path)
+    assert found == []
+    left_out = [n for n in notes if "left out" in n]
+    assert [n.split(":")[0] for n in left_out] == ["MSNBC", "BMS"]
+    assert "msnbc.seq" in left_out[0] and "BMS.dat" in left_out[1]
+
+
 def test_split_and_query_follow_ipredict():
     folds = bench.split(31, 14, seed=0)
     assert [len(f) for f in folds] == [2] * 13 + [5]
