@@ -41,6 +41,11 @@ _NONE = object()  # (a channel the prediction has no value of)
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
 
+_FORMS = {"sequence": "sequences of items", "steps": "steps of actions and observations"}
+_METHODS = {"sequence": "learn, predict, rank and predict_many",
+            "steps": "learn_steps, predict_step and rank_step"}
+
+
 class SequenceModel:
     """Learns sequences (or steps with actions) and predicts what comes next.
 
@@ -295,7 +300,9 @@ class SequenceModel:
         if self._form is None and learning:
             self._form = form
         if self._form is not None and self._form != form:
-            raise ParameterError(f"this model learned {self._form}; use the matching methods")
+            methods = _METHODS[self._form]
+            raise ParameterError(f"this model learned {_FORMS[self._form]}: use {methods} "
+                                 f"(the matching methods), or a new SequenceModel for {_FORMS[form]}")
 
     @contextmanager
     def _registering(self) -> Iterator[None]:

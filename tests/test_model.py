@@ -275,8 +275,10 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
         with pytest.raises(ParameterError, match=message) as raised:
             call()
         assert "\n" not in str(raised.value)
-    for call in (lambda: steps.predict("ab"), lambda: steps.predict_many(["ab"]), lambda: model.predict_step([], {})):
-        with pytest.raises(ParameterError, match="use the matching methods"):
+    for call, methods in ((lambda: steps.predict("ab"), "learn_steps, predict_step and rank_step"),
+                          (lambda: steps.predict_many(["ab"]), "learn_steps, predict_step and rank_step"),
+                          (lambda: model.predict_step([], {}), "learn, predict, rank and predict_many")):
+        with pytest.raises(ParameterError, match=f"use {methods} \\(the matching methods\\)"):
             call()
     assert steps.predict_step([({}, {"pos": 2})], {"cmd": "R"}) == {"pos": 1}
     assert steps.predict_step([({}, {"pos": 99})], {"cmd": "L"}) == {"pos": 2}  # a value never seen is no error
