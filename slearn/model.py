@@ -41,6 +41,13 @@ _NONE = object()  # (a channel the prediction has no value of)
 Step = tuple[Mapping[str, Hashable], Mapping[str, Hashable]]
 
 
+def _holds_nan(value: Any) -> bool:
+    """Whether ``value`` is a NaN (float, complex, NumPy's) or a tuple holding one."""
+    if isinstance(value, tuple):
+        return any(_holds_nan(v) for v in value)
+    return isinstance(value, (float, complex, np.floating, np.complexfloating)) and value != value
+
+
 _FORMS = {"sequence": "sequences of items", "steps": "steps of actions and observations"}
 _METHODS = {"sequence": "learn, predict, rank and predict_many",
             "steps": "learn_steps, predict_step and rank_step"}
@@ -343,10 +350,16 @@ class SequenceModel:
         except TypeError:
             raise ParameterError(f"{channel} value {value!r} is not hashable: use tuples, "
                                  f"strings or numbers") from None
-        if learn:
-            return self.vocabulary.symbol(channel, value)
         known = self.vocabulary.get_symbol(channel, value)
-        return -1 if known is None else known
+        if not learn:
+            return -1 if known is None else known
+        if known is not None:
+            return known
+        if _holds_nan(value):
+            raise ParameterError(f"{channel} value {value!r} is or holds a NaN, which never equals "
+                                 f"itself, so each NaN would be a value of its own: replace missing "
+                                 f"values with None or a label first")
+        return self.vocabulary.symbol(channel, value)
 
     def _step_symbols(self, step: Step, learn: bool) -> tuple[tuple[int, ...], tuple[int, ...]]:
         out = []

@@ -1,5 +1,6 @@
 """SequenceModel: the small Python API, its two forms, files and bad input."""
 
+import numpy as np
 import pytest
 
 from slearn import SequenceModel
@@ -282,6 +283,22 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
             call()
     assert steps.predict_step([({}, {"pos": 2})], {"cmd": "R"}) == {"pos": 1}
     assert steps.predict_step([({}, {"pos": 99})], {"cmd": "L"}) == {"pos": 2}  # a value never seen is no error
+
+
+def test_a_nan_to_learn_is_refused_and_leaves_the_model_as_it_was():
+    model = SequenceModel()
+    model.learn([1.0, 2.0, 1.0, 2.0])
+    for bad in ([1.0, float("nan")], list(np.array([2.0, np.nan])), [(1, float("nan"))]):
+        with pytest.raises(ParameterError, match="NaN, which never equals itself") as raised:
+            model.learn(bad)
+        assert "\n" not in str(raised.value)
+    assert len(model.vocabulary) == 2 and model.library.clock == 4
+    assert model.predict([float("nan")]) is None  # never learned: unseen
+    assert model.predict([1.0]) == 2.0
+    steps = SequenceModel()
+    with pytest.raises(ParameterError, match="pos value nan"):
+        steps.learn_steps([({"cmd": "R"}, {"pos": 1}), ({"cmd": "R"}, {"pos": float("nan")})])
+    assert steps.library is None and len(steps.vocabulary) == 0
 
 
 def test_the_order_of_a_steps_keys_does_not_matter():
