@@ -66,7 +66,8 @@ def event_value(value: Any, where: str) -> str | int | float | bool:
     if hasattr(value, "item") and not isinstance(value, (str, bytes)):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
-        raise InputError(f"{where}: value {value!r} is not a finite number")
+        raise InputError(f"{where}: value {value!r} is not a finite number: leave a missing "
+                         "reading out (no event), or give it a label such as \"missing\"")
     if not isinstance(value, (str, int, float, bool)):
         raise InputError(f"{where}: value {value!r} is a {type(value).__name__}; events take "
                          "a string, integer, number or boolean")

@@ -107,6 +107,8 @@ def test_jsonl_with_time_ns(tmp_path):
     ("bad.csv", "time,channel,value,role\n0,a,1,action\n1,a,2,observation\n",
      r"bad.csv:3: channel 'a' is observation here but action on line 2"),
     ("empty.txt", "\n# nothing\n", r"no events found"),
+    ("nan.csv", "time,channel,value\n0,a,1\n1,a,nan\n",
+     r"nan.csv:3: value nan is not a finite number: leave a missing reading out \(no event\)"),
 ])
 def test_malformed_input_names_the_line(tmp_path, name, text, message):
     with pytest.raises(InputError, match=message):
