@@ -107,6 +107,7 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
                           window=window, baselines=baselines, baseline_fit=fit,
                           keep_outcomes=keep_outcomes, on_episode=_progress_line if progress else None)
     result.warnings[:0] = setup.spec.warnings() + _learned_here(logs, setup.facts["provenance"], time_slice) \
+        + ([] if online else _fresh_leaders(setup)) \
         + list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DataWarning)))
     result.setup = {**setup.facts, "logs": logs, "spec": setup.spec.to_dict()}
     if time_slice is not None:
@@ -220,6 +221,37 @@ def _learned_here(logs: list[str], provenance: Any, replayed: TimeSlice | None) 
                        f"{how} no held-out figure; replay other logs, or learn with --split and "
                        f"replay with the same --split")
     return out
+
+
+def _fresh_leaders(setup: _Setup) -> list[str]:
+    """A warning when a frozen library's views predict with fresh counts: at the end of
+    learning their leading expert reads the counts since the last change of dynamics the
+    view detected, so a held-out log that starts in other dynamics (each training log of a
+    switch condition starts before its switch) is predicted with those of after the change
+    until it ends, and nothing frozen can notice."""
+    import numpy as np
+
+    from slearn.core.library import JOINT
+    from slearn.core.mixer import FRESH
+
+    library = setup.library
+    mixer = getattr(library, "mixer", None)
+    if mixer is None or setup.facts.get("library") is None:
+        return []
+    names = library.view_names
+    fresh = [(names[v], int(mixer.epoch[v])) for v in range(min(len(names), len(mixer.epoch)))
+             if mixer.epoch[v] > 0 and int(np.argmax(mixer.weight[v])) % mixer.weight.shape[2] == FRESH]
+    if not fresh:
+        return []
+    if [name for name, _ in fresh] == [JOINT]:
+        which = f"it predicts (after {fresh[0][1]} alarms)"
+    else:
+        views = ", ".join(f"{name} ({alarms} alarms)" for name, alarms in fresh)
+        which = f"view {views} predicts" if len(fresh) == 1 else f"views {views} predict"
+    return [f"{setup.facts['library']['path']}: frozen, {which} with the counts since the last "
+            "change of dynamics detected while learning; a held-out log that starts in other "
+            "dynamics (as a training log with a switch did) is predicted with those throughout: "
+            "replay it --online to follow changes as learning does"]
 
 
 def _training_slices(provenance: dict, training: list[str]) -> dict[str, TimeSlice]:

@@ -648,3 +648,33 @@ def test_frozen_surprise_uses_the_probability_of_what_happened():
     assert (o.truth_probability[in_top] > 0).any()
     bits = o.surprise_bits()
     assert np.allclose(bits[in_top], -np.log2(np.maximum(o.truth_probability[in_top], SURPRISE_FLOOR)))
+
+
+def test_a_frozen_library_that_ends_in_fresh_counts_is_warned_about(logs, tmp_path):
+    """Learned on scramble episodes, the library ends in the last one's scrambled labels
+    (its fresh counts lead); frozen on a new episode, which starts unscrambled, it predicts
+    with them throughout, and replay says so; online it relearns, and says nothing."""
+    from slearn.io.serialize import read_episodes
+
+    paths = [tmp_path / f"scramble{seed}.mcap" for seed in range(3)]
+    for seed, path in enumerate(paths):
+        record_pointer(PointerConfig("scramble", trials=3000, seed=seed, switch_trial=1000), path)
+    library, vocabulary, spec = PatternLibrary(), Vocabulary(), pointer_spec()
+    for _, episode, _ in read_episodes(paths[:2], spec, vocabulary):
+        library.learn(episode)
+    saved = tmp_path / "scramble.parquet"
+    storage.save_library(saved, library, vocabulary, spec=spec, params={"scoring": "adaptive"},
+                         provenance={"inputs": [storage.file_record(p) for p in paths[:2]]})
+
+    def fresh_warnings(result):
+        return [w for w in result.warnings if "since the last change of dynamics" in w]
+
+    frozen = replay_logs([paths[2]], library=saved)
+    [warning] = fresh_warnings(frozen)
+    assert "frozen, it predicts (after 3 alarms) with" in warning and "--online" in warning
+    assert "\n" not in warning
+    markov = frozen.to_dict()["totals"]["baselines"]["markov"]["accuracy"]
+    assert frozen.accuracy < markov - 0.2  # what it warns of
+    online = replay_logs([paths[2]], library=saved, online=True)
+    assert not fresh_warnings(online) and online.accuracy > 0.9
+    assert not fresh_warnings(replay_logs([logs["simple3"]], library=logs["library"]))
