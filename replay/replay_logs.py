@@ -229,8 +229,6 @@ def _fresh_leaders(setup: _Setup) -> list[str]:
     view detected, so a held-out log that starts in other dynamics (each training log of a
     switch condition starts before its switch) is predicted with those of after the change
     until it ends, and nothing frozen can notice."""
-    import numpy as np
-
     from slearn.core.library import JOINT
     from slearn.core.mixer import FRESH
 
@@ -238,9 +236,9 @@ def _fresh_leaders(setup: _Setup) -> list[str]:
     mixer = getattr(library, "mixer", None)
     if mixer is None or setup.facts.get("library") is None:
         return []
-    names = library.view_names
-    fresh = [(names[v], int(mixer.epoch[v])) for v in range(min(len(names), len(mixer.epoch)))
-             if mixer.epoch[v] > 0 and int(np.argmax(mixer.weight[v])) % mixer.weight.shape[2] == FRESH]
+    leading_kind = mixer.weight.max(axis=1).argmax(axis=1)  # per view: the kind of its best expert
+    fresh = [(name, int(mixer.epoch[v])) for v, name in enumerate(library.view_names)
+             if mixer.epoch[v] > 0 and leading_kind[v] == FRESH]
     if not fresh:
         return []
     if [name for name, _ in fresh] == [JOINT]:
