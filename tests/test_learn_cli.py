@@ -188,7 +188,39 @@ def test_a_resumed_spec_that_does_not_fit_a_new_log_is_refused(logs, tmp_path):
     assert "/pointer/command" in result.stderr and "is not in this log" in result.stderr
     assert not (tmp_path / "more.parquet").exists()
     plain = learn(other, "-o", tmp_path / "x.parquet")
-    assert plain.exit_code == 1 and "not a pointer log (topics: /robot/mode): pass --spec" in plain.stderr
+    assert plain.exit_code == 1 and "not a pointer log (topics: /robot/mode): pass --spec auto" in plain.stderr
+    auto = learn(other, "--spec", "auto", "-o", tmp_path / "x.parquet")  # one constant field
+    assert auto.exit_code == 1 and "Traceback" not in auto.output
+    assert auto.stderr.startswith("slearn: error: --spec auto: no [[channel]] entries") and \
+        f"slearn info {other}` shows every field" in auto.stderr
+    assert not (tmp_path / "x.parquet").exists()
+
+
+def _drifting_log(path):
+    """A command (+-1) and a reading that climbs from 0 to 10 over the log."""
+    with EpisodeWriter(path) as writer:
+        command = writer.register_channel("/robot/cmd", "Cmd", {"type": "object"})
+        reading = writer.register_channel("/robot/level", "Level", {"type": "object"})
+        for k in range(400):
+            writer.write(command, 2 * k * 10**7, {"data": (-1) ** k})
+            writer.write(reading, (2 * k + 1) * 10**7, {"value": k / 40 + 0.01 * (k % 7)})
+    return path
+
+
+def test_spec_auto_suggests_from_the_part_that_is_learned(tmp_path):
+    """`--spec auto` profiles what `--split` learns, not the held-out part: the reading's
+    bins end where the training part's readings end (replay warns about the rest)."""
+    log = _drifting_log(tmp_path / "drift.mcap")
+    whole, part = tmp_path / "whole.parquet", tmp_path / "part.parquet"
+    said = learn(log, "--spec", "auto", "-o", whole)
+    assert said.exit_code == 0, said.output
+    assert "--spec auto: observations /robot/level; actions /robot/cmd (" in said.stderr
+    assert learn(log, "--spec", "auto", "--split", "0.3", "-o", part).exit_code == 0
+    level = {lib: next(c for c in load_library(lib).spec.channels if c.topic == "/robot/level")
+             for lib in (whole, part)}
+    assert level[whole].symbolizer.range[1] > 9.9
+    assert level[part].symbolizer.range[1] < 3.1
+    assert learn(log, "--spec", "auto", "--resume", whole, "-o", tmp_path / "r.parquet").exit_code == 2
 
 
 def test_resuming_a_library_without_a_spec_needs_one_with_observations(logs, tmp_path):

@@ -177,11 +177,14 @@ def arm_messages(seed: int, trials: int):
     return out
 
 
-def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_path):
-    """Several joints in one JointState and one Float64MultiArray command: every joint is
-    its own view, so frozen replay reaches the deterministic ceiling (slearn 0.1: 11.9 %)."""
+@pytest.fixture(scope="module")
+def ros2_arm(tmp_path_factory):
+    """Rosbag2 folders of a 3-joint arm: three training logs (so that each joint's random
+    walk has visited every bin) and a held-out one."""
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as BagWriter
+
+    root = tmp_path_factory.mktemp("ros2-arm")
 
     def record(folder, messages):
         with BagWriter(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -190,9 +193,14 @@ def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_pat
                 writer.write(connections[topic], time_ns, data)
         return folder
 
-    # three training logs, so that each joint's random walk has visited every bin
-    train = [record(tmp_path / f"train{seed}", arm_messages(seed, ARM_TRAIN_TRIALS)) for seed in range(3)]
-    heldout = record(tmp_path / "heldout", arm_messages(3, ARM_HELDOUT_TRIALS))
+    train = [record(root / f"train{seed}", arm_messages(seed, ARM_TRAIN_TRIALS)) for seed in range(3)]
+    return train, record(root / "heldout", arm_messages(3, ARM_HELDOUT_TRIALS))
+
+
+def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(ros2_arm, tmp_path):
+    """Several joints in one JointState and one Float64MultiArray command: every joint is
+    its own view, so frozen replay reaches the deterministic ceiling (slearn 0.1: 11.9 %)."""
+    train, heldout = ros2_arm
     spec = tmp_path / "arm.toml"
     assert invoke("info", train[0], "--suggest-spec", spec).exit_code == 0
     channels = load_spec(spec).channels  # used as written, no edits
@@ -209,6 +217,30 @@ def test_a_ros2_arm_with_all_joints_in_one_message_learns_to_the_ceiling(tmp_pat
     assert [c["events"] for c in doc["channels"]] == [ARM_HELDOUT_TRIALS] * ARM_JOINTS
     assert doc["totals"]["accuracy"] >= 0.99  # every joint right
     assert all(c["accuracy"] >= 0.99 for c in doc["channels"])
+
+
+def test_spec_auto_learns_a_robot_log_in_one_command_as_the_suggested_spec_does(ros2_arm, tmp_path):
+    """`learn --spec auto` learns with the spec `info --suggest-spec` writes for the same
+    logs, says on stderr what it chose, and keeps the spec in the library."""
+    from slearn.io.library_file import load_library
+
+    train, heldout = ros2_arm
+    spec = tmp_path / "arm.toml"
+    assert invoke("info", *train, "--suggest-spec", spec).exit_code == 0
+    written, auto = tmp_path / "written.parquet", tmp_path / "auto.parquet"
+    assert invoke("learn", *train, "--spec", spec, "-o", written, "-q").exit_code == 0
+    learned = CliRunner().invoke(main, ["learn", *map(str, train), "--spec", "auto", "-o", str(auto),
+                                        "-q"])
+    assert learned.exit_code == 0, learned.output
+    said = learned.stderr.splitlines()[0]
+    assert said.startswith("slearn: --spec auto: observations /joint_states:position[name=joint")
+    assert all(f"/joint_states:position[name=joint{j + 1}]" in said for j in range(ARM_JOINTS))
+    assert all(f"/forward_position_controller/commands:data[{j}]" in said.split("; actions ")[1]
+               for j in range(ARM_JOINTS))
+    assert load_library(auto).spec.to_dict() == load_library(written).spec.to_dict()
+    docs = [json.loads(invoke("replay", lib, heldout, "--json", "-q").stdout) for lib in (written, auto)]
+    assert docs[0]["totals"] == docs[1]["totals"] and docs[0]["channels"] == docs[1]["channels"]
+    assert docs[1]["totals"]["accuracy"] >= 0.99
 
 
 BUSY_JOINTS, BUSY_BINS = 6, 8

@@ -25,6 +25,8 @@ from slearn.io.files import refuse_inputs
 from slearn.io.spec import DEFAULT_MODE, MODES, Spec, load_spec, spec_from_options
 from slearn.jobs.learn import SCORING_RULES, LearnResult, expand_paths, learn_files
 
+AUTO = "auto"  # --spec auto: the suggested spec of the logs
+
 
 def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
           tick_ms: float | None, phase_ms: float | None) -> Spec | None:
@@ -34,12 +36,27 @@ def _spec(spec_path: str | None, channels: tuple[str, ...], mode: str | None,
         if mode or tick_ms or phase_ms:
             raise click.UsageError("--mode, --tick-ms and --phase-ms go with --channel; a spec file "
                                    "has its own")
-        return load_spec(spec_path)
+        return None if spec_path == AUTO else load_spec(spec_path)
     if channels:
         return spec_from_options(channels, mode or DEFAULT_MODE, tick_ms, phase_ms)
     if mode or tick_ms or phase_ms:
         raise click.UsageError("--mode, --tick-ms and --phase-ms need --channel")
     return None
+
+
+def _auto_spec(paths: list[str], window) -> Spec:
+    """``--spec auto``: the suggested spec of the logs' learned part, said on stderr."""
+    from slearn.jobs.suggest import suggested_spec  # (profiling imports the decoders)
+
+    spec = suggested_spec(paths, window)
+
+    def listed(role: str) -> str:
+        names = [c.name for c in spec.channels if c.role == role]
+        return ", ".join(names) or "none"
+    click.echo(f"slearn: --spec auto: observations {listed('observation')}; actions "
+               f"{listed('action')} (the library keeps the spec: slearn info LIBRARY shows it; "
+               f"slearn info {paths[0]} --suggest-spec spec.toml writes it to edit)", err=True)
+    return spec
 
 
 def _summary(result: LearnResult) -> str:
@@ -63,7 +80,9 @@ def _progress(total: int):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The library file (Parquet) to write.")
 @click.option("--spec", "spec_path", type=click.Path(dir_okay=False),
-              help="Channel spec (TOML); default: the pointer's channels for pointer logs.")
+              help="Channel spec (TOML), or auto: the spec `slearn info --suggest-spec` writes, "
+                   "suggested from the logs (their --split part) [default: the pointer's "
+                   "channels for pointer logs].")
 @click.option("--channel", "channels", multiple=True, metavar="TOPIC:FIELD:ROLE[:OPTIONS]",
               help=CHANNEL_HELP)
 @click.option("--mode", type=click.Choice(MODES),
@@ -105,13 +124,18 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     learns them in order: the same library, byte for byte, as without.
     """
     spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
-    refuse_inputs(output, [spec_path] if spec_path else [])
-    if topics is not None:
-        if spec is None:
-            raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
-        spec = spec.only_topics(topic_list(topics) or [])
+    if spec_path == AUTO and resume:
+        raise click.UsageError("--resume learns with the library's own spec: leave out --spec auto")
+    refuse_inputs(output, [spec_path] if spec_path and spec_path != AUTO else [])
+    if topics is not None and spec is None and spec_path != AUTO:
+        raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
     window = make_slice(start, end, split)
     paths = expand_paths(list(logs))
+    if spec_path == AUTO:
+        spec = _auto_spec(paths, window)
+    if topics is not None:
+        assert spec is not None
+        spec = spec.only_topics(topic_list(topics) or [])
     progress = not quiet and sys.stderr.isatty()
     with warnings.catch_warnings(), warnings_on_stderr():
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported below, once

@@ -144,8 +144,9 @@ def default_spec(path: str) -> Spec:
     if not topics and report.truncated:
         raise InputError(f"nothing could be read: {report.describe()}")
     shown = ", ".join(sorted(topics)[:8]) or "none"
-    raise SpecError(f"{path}: not a pointer log (topics: {shown}): pass --spec FILE or --channel "
-                    f"(`slearn info {path} --suggest-spec spec.toml` writes a skeleton)")
+    raise SpecError(f"{path}: not a pointer log (topics: {shown}): pass --spec auto (learn what "
+                    f"`slearn info {path} --suggest-spec spec.toml` would write), --spec FILE or "
+                    "--channel")
 
 
 def _new_job(paths: Sequence[str | os.PathLike], spec: Spec | None, max_length: int | None,

@@ -342,6 +342,30 @@ def with_action_scopes(text: str, paths: Iterable[str], window=None) -> str:
     return "\n".join(out)
 
 
+def suggested_spec(paths: Iterable[str], window=None):
+    """The spec ``slearn info --suggest-spec`` writes for ``paths`` (profiled and scoped on
+    ``window`` of each, the part that is learned), parsed: what ``learn --spec auto`` learns.
+
+    Raises:
+        SpecError: no field of the logs can be an entry.
+        InputError: a log cannot be read.
+    """
+    import tomllib
+
+    from slearn.errors import SpecError
+    from slearn.io.spec import Spec
+    from slearn.jobs.info import describe_log
+
+    paths = list(paths)
+    text = with_action_scopes(suggest_spec([describe_log(p, window=window) for p in paths]),
+                              paths, window)
+    try:
+        return Spec.from_dict(tomllib.loads(text), "--spec auto")
+    except SpecError as err:
+        raise SpecError(f"{err} (`slearn info {paths[0]}` shows every field; write a spec with "
+                        "--spec FILE)") from err
+
+
 HINT_STEPS = 20_000
 """Steps of a learn job that :class:`ScopeHint` looks at (the first ones)."""
 
