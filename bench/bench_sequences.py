@@ -33,8 +33,12 @@ replaced at random); ``licenses``: the text of ``/usr/share/common-licenses`` (o
 ``--data DIR``, the public datasets in SPMF format (``MSNBC.txt``, ``BMS.txt``,
 ``FIFA.txt``, ``SIGN.txt``; items separated by ``-1``, a sequence ended by ``-2``) or
 IPredict's own files (``msnbc.seq``, ``BMS.dat``, ``FIFA.dat``, ``sign_language.txt``), and
-a plain text for BIBLE_CHAR (``Bible.txt`` or ``kjv.txt``, one verse per line). The
-published accuracies (CPT+ / SuBSeq, in %) are printed next to them.
+a plain text for BIBLE_CHAR and BIBLE_WORD (``Bible.txt`` or ``kjv.txt``, one verse per
+line). The published accuracies (CPT+ / SuBSeq, in %) are printed next to them. IPredict's
+other datasets are read too when present: ``koran.txt`` and ``leviathan.txt`` as words
+(KORAN_WORD, LEVIATHAN_WORD), ``snake.dat`` (SNAKE, proteins) and the Canadarm robot arm's
+``Canadarm1_actions.txt`` and ``Canadarm2_states.txt`` (SPMF). Where slearn is below a peer,
+a line after the table says so.
 
 Run: ``python bench/bench_sequences.py [--data DIR] [--folds 14] [--datasets a,b] [--json]``.
 """
@@ -43,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -166,6 +171,36 @@ def _read_text_lines(path: Path):
             yield list(line.rstrip("\n"))
 
 
+_SENTENCE_END = re.compile(r"[.?:]")
+
+
+def _read_words(path: Path):
+    """A text as sentences of words (IPredict's word datasets): only letters, ``.``, ``?``,
+    ``:`` and spaces are kept, words are split at spaces, and a word holding ``.``, ``?`` or
+    ``:`` ends its sentence (its last character cut); a sentence goes on across lines.
+    Unlike IPredict, empty words (two spaces) are not items."""
+    current: list[str] = []
+    with open(path, encoding="utf-8", errors="replace") as lines:
+        for line in lines:
+            for word in "".join(c for c in line if c.isalpha() or c in ".?: ").split(" "):
+                ends = bool(_SENTENCE_END.search(word))
+                word = word[:-1] if ends else word
+                if word:
+                    current.append(word)
+                if ends:
+                    yield current
+                    current = []
+
+
+def _read_snake(path: Path):
+    """IPredict's snake.dat: one protein per line, letters as items, lines of 50 or more."""
+    with open(path) as lines:
+        for line in lines:
+            line = line.rstrip("\n")
+            if len(line) >= 50:
+                yield list(line)
+
+
 PUBLIC = {  # name: (profile, drop consecutive repeats, [(file name, reader), ...])
     "MSNBC": (Profile(5, 2, 7), True, [("MSNBC.txt", read_spmf), ("msnbc.seq", _read_lines_of_items),
                                          ("msnbc990928.seq", _read_lines_of_items)]),
@@ -175,6 +210,15 @@ PUBLIC = {  # name: (profile, drop consecutive repeats, [(file name, reader), ..
                                               ("sign_language.txt", _read_sign)]),
     "BIBLE_CHAR": (Profile(5, 2, 7), False, [("Bible.txt", _read_text_lines),
                                              ("kjv.txt", _read_text_lines)]),
+    # IPredict's other datasets: a verse-per-line text as words, two more texts, a protein
+    # set and the Canadarm robot arm's actions and states (SPMF); profiles as IPredict's
+    # (its DefaultProfile where it has none)
+    "BIBLE_WORD": (Profile(3, 1, 4), False, [("Bible.txt", _read_words), ("kjv.txt", _read_words)]),
+    "KORAN_WORD": (Profile(), False, [("koran.txt", _read_words)]),
+    "LEVIATHAN_WORD": (Profile(), False, [("leviathan.txt", _read_words)]),
+    "SNAKE": (Profile(5, 2, 7), False, [("snake.dat", _read_snake)]),
+    "CANADARM1": (Profile(), False, [("Canadarm1_actions.txt", read_spmf)]),
+    "CANADARM2": (Profile(), False, [("Canadarm2_states.txt", read_spmf)]),
 }
 
 
@@ -358,7 +402,7 @@ def datasets(args: argparse.Namespace) -> tuple[list[Dataset], list[str]]:
 
 def render(rows: list[dict], folds: int, notes: list[str]) -> str:
     """One row per dataset."""
-    head = (f"{'dataset':<11}{'seqs':>6}{'items':>9}{'alph':>6}{'len':>6}{'w/c':>5}  "
+    head = (f"{'dataset':<15}{'seqs':>6}{'items':>9}{'alph':>6}{'len':>6}{'w/c':>5}  "
             + "".join(f"{m:>8}" for m in MODELS) + f"{'AKOM*':>10}{'ceiling':>9}{'CPT+':>6}"
             f"{'SuBSeq':>7}")
     lines = [f"next-item accuracy, {folds}-fold cross-validation, % of test sequences", head,
@@ -367,11 +411,15 @@ def render(rows: list[dict], folds: int, notes: list[str]) -> str:
         published = PUBLISHED.get(r["name"])
         ceiling = f"{r['ceiling']:9.1f}" if r["ceiling"] is not None else f"{'-':>9}"
         paper = f"{published[0]:6d}{published[1]:7d}" if published else f"{'-':>6}{'-':>7}"
-        lines.append(f"{r['name']:<11}{r['sequences']:>6}{r['items']:>9}{r['alphabet']:>6}"
+        lines.append(f"{r['name']:<15}{r['sequences']:>6}{r['items']:>9}{r['alphabet']:>6}"
                      f"{r['mean_length']:6.1f}{r['window']:>3}/{r['consequent']}  "
                      + "".join(f"{r[m]:8.1f}" for m in MODELS)
                      + f"{r['AKOM*']:6.1f} ({r['AKOM* order']})" + ceiling + paper)
-    return "\n".join(lines + notes)
+    below = [f"slearn below {m} on {r['name']}: {r['slearn']:.2f} against {r[m]:.2f} "
+             f"({fewer} of {r['sequences']:,} test sequences)"
+             for r in rows for m in MODELS[:-1]
+             if (fewer := round((r[m] - r["slearn"]) * r["sequences"] / 100)) > 0]
+    return "\n".join(lines + below + notes)
 
 
 def main() -> None:

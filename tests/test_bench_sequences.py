@@ -24,7 +24,27 @@ def test_spmf_and_ipredict_files_are_read_as_ipredict_reads_them(tmp_path):
     assert [len(s) for s in by_name["BMS"].sequences] == [10, 20]
     assert [len(s) for s in by_name["SIGN"].sequences] == [12, 12]  # -11 is not an item
     assert len(by_name["BIBLE_CHAR"].sequences) == 2 and by_name["BIBLE_CHAR"].profile.consequent == 2
-    assert len(notes) == 1 and notes[0].startswith("MSNBC")
+    assert [n.split(":")[0] for n in notes] == ["MSNBC", "BIBLE_WORD", "KORAN_WORD", "LEVIATHAN_WORD",
+                                                "SNAKE", "CANADARM1", "CANADARM2"]
+    assert "left out" in notes[1] and "none of" in notes[0]  # no sentence ends in this kjv.txt
+
+
+def test_texts_are_read_as_sentences_of_words_and_proteins_as_letters(tmp_path):
+    (tmp_path / "kjv.txt").write_text("In the beginning God created; the heaven\n"
+                                      "and the earth. And the  earth was: without form?\n"
+                                      "Verse 3 [x] a b c d.\n")
+    (tmp_path / "snake.dat").write_text("A" * 49 + "\n" + "MK" * 25 + "\n")
+    (tmp_path / "Canadarm1_actions.txt").write_text("1 -1 2 -1 3 -1 4 -1 5 -1 6 -1 -2\n")
+    found, _ = bench.public_datasets(tmp_path)
+    by_name = {d.name: d for d in found}
+    words = by_name["BIBLE_WORD"]
+    # a sentence goes on across lines and ends at . ? or :; digits, brackets and ; dropped
+    assert [len(s) for s in words.sequences] == [10, 4, 6]  # "without form" is short
+    assert words.profile == bench.Profile(3, 1, 4)
+    assert list(bench._read_words(tmp_path / "kjv.txt"))[1] == ["And", "the", "earth", "was"]
+    assert list(bench._read_words(tmp_path / "kjv.txt"))[3] == ["Verse", "x", "a", "b", "c", "d"]
+    assert [len(s) for s in by_name["SNAKE"].sequences] == [50]  # lines of 50 letters or more
+    assert by_name["CANADARM1"].sequences == [[0, 1, 2, 3, 4, 5]]
 
 
 def test_an_empty_or_short_public_file_is_left_out_with_a_note(tmp_path):
