@@ -87,3 +87,15 @@ def test_synthetic_sources_and_their_ceilings():
         ceilings = [dataset.ceiling(*bench._query(s, dataset.profile)) for s in dataset.sequences]
         assert 0 < min(ceilings) and max(ceilings) <= 1
         assert low < np.mean(ceilings) < high  # periodic: 90 % + 10 % / 20 at most
+
+
+def test_the_table_says_where_slearn_is_below_a_peer_in_test_sequences():
+    row = {"name": "CANADARM2", "sequences": 170, "items": 8461, "alphabet": 1446,
+           "mean_length": 49.8, "window": 5, "consequent": 1, "AKOM5": 100 * 109 / 170,
+           "PPM-C5": 100 * 111 / 170, "slearn": 100 * 109 / 170, "AKOM*": 100 * 109 / 170,
+           "AKOM* order": 5, "ceiling": None}
+    text = bench.render([row], 14, [])
+    assert text.splitlines()[-1] == ("slearn below PPM-C5 on CANADARM2: 64.12 against 65.29 "
+                                     "(2 of 170 test sequences)")
+    assert "below AKOM5" not in text
+    assert "below" not in bench.render([dict(row, slearn=row["PPM-C5"])], 14, [])
