@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -171,9 +170,6 @@ def _read_text_lines(path: Path):
             yield list(line.rstrip("\n"))
 
 
-_SENTENCE_END = re.compile(r"[.?:]")
-
-
 def _read_words(path: Path):
     """A text as sentences of words (IPredict's word datasets): only letters, ``.``, ``?``,
     ``:`` and spaces are kept, words are split at spaces, and a word holding ``.``, ``?`` or
@@ -183,7 +179,7 @@ def _read_words(path: Path):
     with open(path, encoding="utf-8", errors="replace") as lines:
         for line in lines:
             for word in "".join(c for c in line if c.isalpha() or c in ".?: ").split(" "):
-                ends = bool(_SENTENCE_END.search(word))
+                ends = any(c in ".?:" for c in word)
                 word = word[:-1] if ends else word
                 if word:
                     current.append(word)

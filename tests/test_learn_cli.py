@@ -207,7 +207,7 @@ def _drifting_log(path):
     return path
 
 
-def test_spec_auto_suggests_from_the_part_that_is_learned(tmp_path):
+def test_spec_auto_suggests_from_the_part_that_is_learned(tmp_path, monkeypatch):
     """`--spec auto` profiles what `--split` learns, not the held-out part: the reading's
     bins end where the training part's readings end (replay warns about the rest)."""
     log = _drifting_log(tmp_path / "drift.mcap")
@@ -220,7 +220,15 @@ def test_spec_auto_suggests_from_the_part_that_is_learned(tmp_path):
              for lib in (whole, part)}
     assert level[whole].symbolizer.range[1] > 9.9
     assert level[part].symbolizer.range[1] < 3.1
-    assert learn(log, "--spec", "auto", "--resume", whole, "-o", tmp_path / "r.parquet").exit_code == 2
+    resumed = learn(log, "--spec", "auto", "--resume", whole, "-o", tmp_path / "r.parquet")
+    assert resumed.exit_code == 2 and "leave out --spec auto" in resumed.stderr
+    assert not (tmp_path / "r.parquet").exists()
+    (tmp_path / "auto").write_text('[[channel]]\ntopic = "/robot/level"\nfield = "value"\n'
+                                   'role = "observation"\nrange = [0, 10]\ncount = 5\n')
+    monkeypatch.chdir(tmp_path)  # a spec file named auto is ./auto
+    by_file = learn(log, "--spec", "./auto", "-o", tmp_path / "file.parquet")
+    assert by_file.exit_code == 0, by_file.output
+    assert [c.name for c in load_library(tmp_path / "file.parquet").spec.channels] == ["/robot/level"]
 
 
 def test_resuming_a_library_without_a_spec_needs_one_with_observations(logs, tmp_path):

@@ -11,8 +11,8 @@ from slearn.cli import EXIT_TRUNCATED
 from slearn.cli.common import make_slice, slice_options, topic_list
 from slearn.errors import InputError
 from slearn.io.files import check_output, write_atomic
-from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time, suggest_spec
-from slearn.jobs.suggest import with_action_scopes
+from slearn.jobs.info import ChannelProfile, FieldInfo, LogProfile, describe, iso_time
+from slearn.jobs.suggest import suggested_text
 
 
 def _fmt_value(value) -> str:
@@ -122,7 +122,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], as_json: bool, fields: b
     else:
         click.echo("\n\n".join(_as_text(r, fields) for r in results))
     if spec_out:
-        text = with_action_scopes(suggest_spec(logs), [log.path for log in logs], window)
+        text = suggested_text(logs, window)
         write_atomic(spec_out, text, overwrite=force, inputs=paths)
         click.echo(f"slearn: wrote spec {spec_out}", err=True)
         if not any(e["role"] == "observation" for e in tomllib.loads(text).get("channel", [])):

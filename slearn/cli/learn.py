@@ -81,8 +81,8 @@ def _progress(total: int):
               help="The library file (Parquet) to write.")
 @click.option("--spec", "spec_path", type=click.Path(dir_okay=False),
               help="Channel spec (TOML), or auto: the spec `slearn info --suggest-spec` writes, "
-                   "suggested from the logs (their --split part) [default: the pointer's "
-                   "channels for pointer logs].")
+                   "suggested from the logs (their --split part; a spec file named auto: ./auto) "
+                   "[default: the pointer's channels for pointer logs].")
 @click.option("--channel", "channels", multiple=True, metavar="TOPIC:FIELD:ROLE[:OPTIONS]",
               help=CHANNEL_HELP)
 @click.option("--mode", type=click.Choice(MODES),
@@ -123,15 +123,16 @@ def command(ctx: click.Context, logs: tuple[str, ...], output: str, spec_path: s
     Ray tasks read the logs (every node must see them at the same path) and this process
     learns them in order: the same library, byte for byte, as without.
     """
+    auto = spec_path == AUTO
     spec = _spec(spec_path, channels, mode, tick_ms, phase_ms)
-    if spec_path == AUTO and resume:
+    if auto and resume:
         raise click.UsageError("--resume learns with the library's own spec: leave out --spec auto")
-    refuse_inputs(output, [spec_path] if spec_path and spec_path != AUTO else [])
-    if topics is not None and spec is None and spec_path != AUTO:
+    refuse_inputs(output, [spec_path] if spec_path and not auto else [])
+    if topics is not None and spec is None and not auto:
         raise click.UsageError("--topics selects entries of a spec: give --spec or --channel")
     window = make_slice(start, end, split)
     paths = expand_paths(list(logs))
-    if spec_path == AUTO:
+    if auto:
         spec = _auto_spec(paths, window)
     if topics is not None:
         assert spec is not None

@@ -342,6 +342,12 @@ def with_action_scopes(text: str, paths: Iterable[str], window=None) -> str:
     return "\n".join(out)
 
 
+def suggested_text(profiles: list[LogProfile], window=None) -> str:
+    """The TOML spec ``slearn info --suggest-spec`` writes for profiled logs: the suggestion,
+    with the action scopes their first steps (in ``window``) show."""
+    return with_action_scopes(suggest_spec(profiles), [p.path for p in profiles], window)
+
+
 def suggested_spec(paths: Iterable[str], window=None):
     """The spec ``slearn info --suggest-spec`` writes for ``paths`` (profiled and scoped on
     ``window`` of each, the part that is learned), parsed: what ``learn --spec auto`` learns.
@@ -357,8 +363,7 @@ def suggested_spec(paths: Iterable[str], window=None):
     from slearn.jobs.info import describe_log
 
     paths = list(paths)
-    text = with_action_scopes(suggest_spec([describe_log(p, window=window) for p in paths]),
-                              paths, window)
+    text = suggested_text([describe_log(p, window=window) for p in paths], window)
     try:
         return Spec.from_dict(tomllib.loads(text), "--spec auto")
     except SpecError as err:
