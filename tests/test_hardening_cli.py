@@ -74,6 +74,22 @@ def test_merge_replay_info_and_record_refuse_their_inputs(simple_pointer, tmp_pa
     assert all(p.read_bytes() == b for p, b in before.items())
 
 
+def test_replay_never_writes_over_the_training_logs_its_library_names(pointer_log, tmp_path):
+    """Replay counts its baselines on the library's training logs, so they are inputs too:
+    --plot, --report and --write-mcap refuse them even with --force (relative to the
+    working folder or the library's)."""
+    train = tmp_path / "train.mcap"
+    train.write_bytes(pointer_log("simple", 500).read_bytes())
+    library, heldout = tmp_path / "lib.parquet", pointer_log("simple", 500, seed=1)
+    assert run("learn", "-q", train, "-o", library).exit_code == 0
+    before = train.read_bytes()
+    for option in ("--plot", "--report", "--write-mcap"):
+        line = one_line(run("replay", "-q", library, heldout, option, train, "--force"))
+        assert "is also an input" in line and "train.mcap" in line, option
+    assert train.read_bytes() == before
+    assert run("replay", "-q", library, heldout).exit_code == 0  # the baselines still find it
+
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):

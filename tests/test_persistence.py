@@ -150,3 +150,27 @@ def test_damaged_persistence_weights_are_refused_naming_the_file(tmp_path, damag
                                              pa.array(column, table.schema.field(index).type)))
     with pytest.raises(LibraryFormatError, match=r"bad\.parquet: the view table's persistence weights"):
         load_library(tmp_path / "bad.parquet")
+
+
+@pytest.mark.parametrize(("column", "damage", "message"), [
+    ("view_weights", lambda r: [float("nan")] * len(r), "expert weights"),
+    ("view_weights", lambda r: [float("inf")] * len(r), "expert weights"),
+    ("view_weights", lambda r: [0.0] * len(r), "expert weights"),
+    ("view_weights", lambda r: [2.0] * len(r), "expert weights"),
+    ("view_detector", lambda r: [float("nan")] * len(r), "change detectors"),
+    ("view_detector", lambda r: [-1.0] * len(r), "change detectors"),
+])
+def test_damaged_weights_and_detectors_are_refused_not_run(tmp_path, column, damage, message):
+    """NaN weights crashed the compiled kernels (a segfault in replay, a division by zero in
+    --resume), and merge copied them on: load refuses them, naming the file."""
+    sticky_model(6, 200, 0.6).save(tmp_path / "a.parquet")
+    source = pq.ParquetFile(tmp_path / "a.parquet")
+    with pq.ParquetWriter(tmp_path / "bad.parquet", source.schema_arrow) as out:
+        for group in range(source.num_row_groups):
+            table = source.read_row_group(group)
+            index = table.schema.get_field_index(column)
+            values = [None if r is None else damage(r) for r in table.column(index).to_pylist()]
+            out.write_table(table.set_column(index, table.schema.field(index),
+                                             pa.array(values, table.schema.field(index).type)))
+    with pytest.raises(LibraryFormatError, match=rf"bad\.parquet: the view table's {message}"):
+        load_library(tmp_path / "bad.parquet")

@@ -102,6 +102,10 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
         raise click.UsageError("--max-length sizes an empty library (--spec); a saved library keeps the "
                                "length it learned with")
     inputs = [*paths, *baseline_train, *([spec] if spec else [])]
+    if library is not None:  # the baselines are counted on its training logs: never write over them
+        from slearn.io.library_file import recorded_inputs
+
+        inputs += recorded_inputs(library)
     outputs = [("--plot", plot), ("--report", report)]
     if write_mcap:
         from slearn.replay.annotate import annotated_paths, layout_path

@@ -358,6 +358,21 @@ def _reading(path: Path) -> Iterator[None]:
                                  f"{_one_line(err)[:300]}): re-create it with `slearn learn`") from err
 
 
+def recorded_inputs(path: str | os.PathLike) -> list[str]:
+    """The input logs a library's provenance names, as given and from the library's folder,
+    whether or not they are still on disk: paths an output must never overwrite (replay
+    counts its baselines on them). A file that is not a readable library names none."""
+    try:
+        _, doc = _open(Path(path))
+    except (LibraryFormatError, InputError):
+        return []
+    provenance = doc.get("provenance")
+    entries = provenance.get("inputs") if isinstance(provenance, dict) else None
+    folder = os.path.dirname(os.fspath(path))
+    named = [e["path"] for e in entries or [] if isinstance(e, dict) and isinstance(e.get("path"), str)]
+    return list(dict.fromkeys(p for name in named for p in (name, os.path.join(folder, name))))
+
+
 def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
     try:
         regular_file(path, "library file")
@@ -512,6 +527,12 @@ def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, ve
                                  f"of {CELLS} cells per view: re-create the library")
     epoch = _numbers(table.column("view_epoch"), "view_epoch", path).astype(np.int32)
     weights = weights.astype(np.float64).reshape(n, max_context, 3)
+    if not np.all((weights >= 0) & (weights <= 1)) or (n and not np.all(weights.max(axis=(1, 2)) > 0)):
+        raise LibraryFormatError(f"{path}: the view table's expert weights are not numbers in [0, 1] "
+                                 f"with a positive leader per view: re-create the library")
+    if not np.all((detector >= 0) & (detector < np.inf)) or np.any(epoch < 0):
+        raise LibraryFormatError(f"{path}: the view table's change detectors are not non-negative "
+                                 f"numbers: re-create the library")
     if counted:
         rounds = _numbers(table.column("view_rounds"), "view_rounds", path).astype(np.int64)
     else:  # about one prediction per step where the weights were trained: their age
