@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from slearn.errors import InputError
+from slearn import SequenceModel
+from slearn.errors import InputError, SlearnError
 from slearn.io import files
 from slearn.io.files import (
     INCOMPLETE_MARKER,
@@ -152,6 +153,22 @@ def test_check_output_refuses_folders_missing_folders_and_existing_files(tmp_pat
     with pytest.raises(InputError, match="already exists: pass --force"):
         check_output(tmp_path / "f", False)
     check_output(tmp_path / "f", True)
+
+
+def test_check_output_refuses_a_missing_folder_with_a_slash_and_a_name_not_utf8(tmp_path):
+    """``-o out/`` means a folder: it wrote a file named ``out``; a name that is not UTF-8
+    (a Latin-1 byte from the shell) went on to a traceback in pyarrow."""
+    with pytest.raises(InputError, match="names a folder that does not exist"):
+        check_output(f"{tmp_path}/new/", True)
+    assert not (tmp_path / "new").exists()
+    odd = os.fsdecode(os.fsencode(str(tmp_path)) + b"/out\xfe.parquet")
+    with pytest.raises(InputError, match=r"out\\udcfe\.parquet: the file name is not valid UTF-8"):
+        check_output(odd, True)
+    model = SequenceModel()
+    model.learn("abab")
+    with pytest.raises(SlearnError, match="not valid UTF-8"):
+        model.save(odd)
+    assert os.listdir(tmp_path) == []
 
 
 def test_regular_file_refuses_a_fifo_without_blocking(tmp_path):

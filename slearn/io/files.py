@@ -141,6 +141,14 @@ def check_output(path: str | os.PathLike, overwrite: bool,
     Raises:
         InputError: naming the file and what to do.
     """
+    text = os.fspath(path)
+    if text.endswith(("/", os.sep)) and not os.path.isdir(text):
+        raise InputError(f"{text} names a folder that does not exist: give a file name to write")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(f"{text.encode('utf-8', 'backslashreplace').decode()}: the file name is not "
+                         f"valid UTF-8, which Parquet and MCAP writers need: choose another name") from None
     path = Path(path)
     refuse_inputs(path, inputs)
     if path.is_dir():
