@@ -67,6 +67,7 @@ def test_slippery_lake_is_close_to_value_iteration_on_the_true_model():
     ("gymnasium:CartPole-v1", {}, "Box observation space"),
     ("gymnasium:NoSuchEnv-v0", {}, "doesn't exist"),
     ("gymnasium:FrozenLake-v1", {"colour": "blue"}, "rejects its arguments"),
+    ("gymnasium:FrozenLake-v1", {"map_name": "99x99"}, r"rejects its arguments \(map_name=.99x99.\): KeyError"),
     ("arm:left", {}, "use pointer:CONDITION or gymnasium:ID"),
 ])
 def test_bad_environments_are_one_line_errors(spec, args, message):

@@ -278,8 +278,11 @@ def _make_gymnasium(env_id: str, kwargs: dict):
         env = gymnasium.make(spec, disable_env_checker=True, **kwargs)
     except gymnasium.error.Error as e:
         raise InputError(f"gymnasium environment {env_id!r}: {_one_line(e)}") from None
-    except TypeError as e:  # an unknown keyword argument
-        raise InputError(f"gymnasium environment {env_id!r} rejects its arguments: {_one_line(e)}") from None
+    except (TypeError, ValueError, KeyError, IndexError, AssertionError) as e:  # an unknown keyword, a bad value
+        given = ", ".join(f"{k}={v!r}" for k, v in kwargs.items())
+        raise InputError(f"gymnasium environment {env_id!r} rejects its arguments ({given}): "
+                         f"{type(e).__name__}: {_one_line(e)}; see its documentation for the values "
+                         f"it takes") from None
     for what, space in (("observation", env.observation_space), ("action", env.action_space)):
         if not isinstance(space, gymnasium.spaces.Discrete):
             env.close()
