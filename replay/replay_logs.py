@@ -18,6 +18,7 @@ from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, TruncatedLogWarning
 from slearn.io.bags import is_log_path
+from slearn.io.library_file import input_places
 from slearn.io.mcap_read import ReadReport
 from slearn.io.slicing import TimeSlice, shares_time, slice_from_dict
 from slearn.io.spec import Spec
@@ -186,9 +187,7 @@ def _training_logs(provenance: dict, library_dir: str) -> list[str]:
 def _unchanged(entry: Any, library_dir: str) -> str | None:
     from slearn.io.bags import log_record
 
-    if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
-        return None
-    for path in dict.fromkeys([entry["path"], os.path.join(library_dir, entry["path"])]):
+    for path in input_places(entry, library_dir):
         if os.path.isfile(path) or is_log_path(path):
             record = log_record(path)  # reads the whole log: once
             if (record["size_bytes"], record["sha256"]) == (entry.get("size_bytes"), entry.get("sha256")):

@@ -369,8 +369,15 @@ def recorded_inputs(path: str | os.PathLike) -> list[str]:
     provenance = doc.get("provenance")
     entries = provenance.get("inputs") if isinstance(provenance, dict) else None
     folder = os.path.dirname(os.fspath(path))
-    named = [e["path"] for e in entries or [] if isinstance(e, dict) and isinstance(e.get("path"), str)]
-    return list(dict.fromkeys(p for name in named for p in (name, os.path.join(folder, name))))
+    return list(dict.fromkeys(p for entry in entries or [] for p in input_places(entry, folder)))
+
+
+def input_places(entry: Any, library_dir: str) -> list[str]:
+    """Where a provenance input ``entry`` may be: its path as given (from the working
+    folder), then from the library's folder; none for an entry without a path."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("path"), str):
+        return []
+    return list(dict.fromkeys([entry["path"], os.path.join(library_dir, entry["path"])]))
 
 
 def _open(path: Path) -> tuple[pq.ParquetFile, dict]:
