@@ -17,7 +17,7 @@ from slearn.core.literal import LiteralLibrary
 from slearn.core.stream import Episode
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, TruncatedLogWarning
-from slearn.io.bags import is_log_path
+from slearn.io.bags import check_log_path, is_log_path
 from slearn.io.library_file import input_places
 from slearn.io.mcap_read import ReadReport
 from slearn.io.slicing import TimeSlice, shares_time, slice_from_dict
@@ -94,8 +94,7 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     if not logs:
         raise InputError("no logs to replay: give at least one MCAP file")
     for path in logs:
-        if not os.path.isfile(path) and not is_log_path(path):
-            raise InputError(f"{path}: no such log file")
+        check_log_path(path)
     setup = _open_library(library, spec, logs) if library is not None else \
         _empty_library(spec, max_length, logs, progress)
     online = online or library is None

@@ -90,6 +90,20 @@ def test_replay_never_writes_over_the_training_logs_its_library_names(pointer_lo
     assert run("replay", "-q", library, heldout).exit_code == 0  # the baselines still find it
 
 
+def test_replay_says_a_plain_folder_is_no_log_as_learn_does(pointer_log, tmp_path):
+    """A folder that is not a rosbag2 bag is named as a folder, not as a missing file."""
+    library = tmp_path / "lib.parquet"
+    assert run("learn", "-q", pointer_log("simple", 300), "-o", library).exit_code == 0
+    (tmp_path / "logs").mkdir()
+    for command in ("replay", "learn"):
+        args = (library,) if command == "replay" else ()
+        result = run(command, "-q", *args, tmp_path / "logs", *(("-o", tmp_path / "x.parquet") if command == "learn" else ()))
+        assert result.exit_code == 1
+        assert "logs is a folder, not a log file (or rosbag2 folder with metadata.yaml)" in one_line(result), command
+    result = run("replay", "-q", library, tmp_path / "missing.mcap")
+    assert result.exit_code == 1 and "missing.mcap: no such log file" in one_line(result)
+
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):

@@ -61,6 +61,14 @@ def is_log_path(path: str | os.PathLike) -> bool:
         or path.suffix.lower() in BAG_SUFFIXES
 
 
+def check_log_path(path: str | os.PathLike) -> None:
+    """Refuse ``path`` unless it is a regular file or a rosbag2 folder (one with its
+    ``metadata.yaml``), in one line naming it: missing, a plain folder, a pipe or a device.
+    Opens nothing."""
+    if not (os.path.isdir(path) and is_log_path(path)):
+        regular_file(path, "log file (or rosbag2 folder with metadata.yaml)")
+
+
 def open_log(path: str | os.PathLike):
     """Open a log: MCAP file, rosbag2 folder (or its ``metadata.yaml``), ``.db3`` or ``.bag``.
 

@@ -31,8 +31,8 @@ from slearn.core.library import DEFAULT_MAX_LENGTH, PatternLibrary
 from slearn.core.literal import LiteralLibrary
 from slearn.core.vocabulary import Vocabulary
 from slearn.errors import DataWarning, InputError, SpecError
-from slearn.io.bags import is_log_path, log_record, open_log
-from slearn.io.files import check_output, regular_file
+from slearn.io.bags import check_log_path, log_record, open_log
+from slearn.io.files import check_output
 from slearn.io.library_file import load_library, save_library
 from slearn.io.library_header import MAX_TIME_UNIX
 from slearn.io.mcap_read import ReadReport
@@ -113,8 +113,7 @@ def expand_paths(patterns: list[str]) -> list[str]:
             raise InputError(f"{pattern}: no file matches")
         paths += matches
     for path in paths:
-        if not (os.path.isdir(path) and is_log_path(path)):
-            regular_file(path, "log file (or rosbag2 folder with metadata.yaml)")
+        check_log_path(path)
     return paths
 
 
