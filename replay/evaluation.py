@@ -182,6 +182,7 @@ class Evaluation:
     outcomes: list[EpisodeOutcome] = field(default_factory=list)
     total_s: float | None = None
     spec: Spec | None = None
+    baseline_truncated: list[str] = field(default_factory=list)  # training logs the baselines salvaged
     vocabulary: Vocabulary | None = None
     tokens: TokenTable | None = None
     scoring: dict[str, Any] = field(default_factory=dict)
@@ -194,8 +195,9 @@ class Evaluation:
 
     @property
     def truncated(self) -> bool:
-        """Whether some log was truncated (only what was salvaged was scored)."""
-        return any(e.truncated for e in self.episodes)
+        """Whether some log was truncated (only what was salvaged was scored or, for the
+        baselines' training logs, counted)."""
+        return any(e.truncated for e in self.episodes) or bool(self.baseline_truncated)
 
     @property
     def predictions_per_s(self) -> float:

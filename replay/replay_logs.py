@@ -101,7 +101,7 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported in the result instead
         warnings.simplefilter("always", DataWarning)
-        baselines, fit = _fit_baselines(setup, baseline_logs, progress, reader)
+        baselines, fit, salvaged = _fit_baselines(setup, baseline_logs, progress, reader)
         episodes = _read(logs, setup.spec, setup.vocabulary, progress, time_slice, reader)
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
                           window=window, baselines=baselines, baseline_fit=fit,
@@ -109,6 +109,9 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
     result.warnings[:0] = setup.spec.warnings() + _learned_here(logs, setup.facts["provenance"], time_slice) \
         + ([] if online else _fresh_leaders(setup)) \
         + list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DataWarning)))
+    result.baseline_truncated = [report.path for report in salvaged]
+    result.warnings += [f"baselines: {report.describe()}; the baselines were counted on what was salvaged"
+                        for report in salvaged]
     result.setup = {**setup.facts, "logs": logs, "spec": setup.spec.to_dict()}
     if time_slice is not None:
         result.setup["slice"] = time_slice.to_dict()
@@ -260,18 +263,24 @@ def _training_slices(provenance: dict, training: list[str]) -> dict[str, TimeSli
 
 
 def _fit_baselines(setup: _Setup, baseline_logs: Iterable[str | os.PathLike] | None,
-                   progress: bool, reader: Any = None) -> tuple[Baselines | None, str]:
+                   progress: bool, reader: Any = None) -> tuple[Baselines | None, str, list[ReadReport]]:
+    """The baselines counted on their training logs (``--baseline-train``, else the
+    library's own), how they were fitted, and the read reports of training logs that were
+    truncated (the baselines count what was salvaged; replay warns and exits 3)."""
     paths = [os.fspath(p) for p in baseline_logs] if baseline_logs else setup.training_logs
     if not paths:
-        return None, FIT_PREQUENTIAL
+        return None, FIT_PREQUENTIAL, []
     baselines = Baselines(setup.library)
     if progress:
         sys.stderr.write(f"replay: counting the baselines on {len(paths)} training log(s)\n")
-    for _, episode, _ in _read(paths, setup.spec, setup.vocabulary, False,
-                               setup.training_slices if not baseline_logs else None, reader):
+    salvaged = []
+    for _, episode, report in _read(paths, setup.spec, setup.vocabulary, False,
+                                    setup.training_slices if not baseline_logs else None, reader):
         baselines.learn(setup.library.encode(episode))
+        if report is not None and report.truncated:
+            salvaged.append(report)
     setup.facts["baseline_logs"] = paths
-    return baselines, FIT_TRAINING
+    return baselines, FIT_TRAINING, salvaged
 
 
 def _jsonable(value: Any) -> Any:

@@ -104,6 +104,20 @@ def test_replay_says_a_plain_folder_is_no_log_as_learn_does(pointer_log, tmp_pat
     assert result.exit_code == 1 and "missing.mcap: no such log file" in one_line(result)
 
 
+def test_a_truncated_baseline_training_log_is_warned_and_exits_3(pointer_log, tmp_path):
+    """--baseline-train logs are inputs too: one that breaks is counted as far as it reads,
+    with a warning naming it and exit status 3, as a truncated held-out log."""
+    train = pointer_log("simple", 600)
+    library = tmp_path / "lib.parquet"
+    assert run("learn", "-q", train, "-o", library).exit_code == 0
+    data = train.read_bytes()
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(data[: len(data) * 2 // 3])
+    result = run("replay", "-q", library, pointer_log("simple", 300, seed=1), "--baseline-train", broken)
+    assert result.exit_code == EXIT_TRUNCATED
+    assert "baselines: " in result.output and "broken.mcap: truncated or corrupt log" in result.output
+
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):
