@@ -95,11 +95,11 @@ def test_replay_says_a_plain_folder_is_no_log_as_learn_does(pointer_log, tmp_pat
     library = tmp_path / "lib.parquet"
     assert run("learn", "-q", pointer_log("simple", 300), "-o", library).exit_code == 0
     (tmp_path / "logs").mkdir()
-    for command in ("replay", "learn"):
-        args = (library,) if command == "replay" else ()
-        result = run(command, "-q", *args, tmp_path / "logs", *(("-o", tmp_path / "x.parquet") if command == "learn" else ()))
+    for args in (("replay", "-q", library, tmp_path / "logs"),
+                 ("learn", "-q", tmp_path / "logs", "-o", tmp_path / "x.parquet")):
+        result = run(*args)
         assert result.exit_code == 1
-        assert "logs is a folder, not a log file (or rosbag2 folder with metadata.yaml)" in one_line(result), command
+        assert "logs is a folder, not a log file (or rosbag2 folder with metadata.yaml)" in one_line(result), args[0]
     result = run("replay", "-q", library, tmp_path / "missing.mcap")
     assert result.exit_code == 1 and "missing.mcap: no such log file" in one_line(result)
 
