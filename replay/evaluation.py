@@ -11,8 +11,8 @@ reporting progress through a callback; it reads and writes no file
 Baselines (:mod:`slearn.replay.baselines`) see the same token stream. How they are
 trained is reported as ``baselines.fit``:
 
-* ``"training"``: counted on the library's training logs (given, or named in the
-  library's provenance and still on disk), then scored like the library: frozen in a
+* ``"training"``: counted on training logs (given, e.g. ``--baseline-train``, or the
+  library's own, named in its provenance and still on disk), then scored like the library: frozen in a
   frozen replay, learning as they go in an online one. The fair comparison.
 * ``"prequential"``: no training logs at hand, so they learn on the held-out stream as
   they go (predict each step, then count it). In a frozen replay that favours the
@@ -387,14 +387,15 @@ def evaluate(library: PatternLibrary | LiteralLibrary,
              episodes: Iterable[tuple[str, Episode, ReadReport | None]],
              vocabulary: Vocabulary, *, online: bool = False, top_k: int = 3,
              window: int | None = None, baselines: Baselines | None = None,
-             baseline_fit: str | None = None, keep_outcomes: bool = False,
-             on_episode: Callable[[Checkpoint], None] | None = None) -> Evaluation:
+             baseline_fit: str | None = None, baseline_source: str = "the library's training logs",
+             keep_outcomes: bool = False, on_episode: Callable[[Checkpoint], None] | None = None) -> Evaluation:
     """Run :func:`iter_evaluation` to the end and collect an :class:`Evaluation`.
 
     Args:
         baselines: baselines already counted on the training data (``baseline_fit``
             ``"training"``); ``None`` starts them empty and lets them learn as they go.
         baseline_fit: how ``baselines`` were fitted (default from whether they were given).
+        baseline_source: which logs they were counted on, for the note (``"training"`` fit).
         keep_outcomes: keep every episode's per-step predictions (for annotated logs).
         on_episode: called with each episode's :class:`Checkpoint` as it is done
             (progress display; the evaluation itself writes nothing).
@@ -422,7 +423,7 @@ def evaluate(library: PatternLibrary | LiteralLibrary,
     result.warnings += result.honest.warnings()
     labels = ChannelDecoder(library.tokens, vocabulary)  # each view's own values
     result.confusions = [(labels.label(p), labels.label(a), n) for (p, a), n in wrong.most_common(N_CONFUSIONS)]
-    result.notes.append(_fit_note(fit, online))
+    result.notes.append(_fit_note(fit, online, baseline_source))
     result.scoring = {"rule": "literal" if isinstance(library, LiteralLibrary) else "adaptive",
                       "factored": bool(getattr(library, "factored", False))}
     result.vocabulary, result.tokens = vocabulary, steps
@@ -445,10 +446,10 @@ def _collect(result: Evaluation, point: Checkpoint, wrong: Counter, keep_outcome
         result.outcomes.append(o)
 
 
-def _fit_note(fit: str, online: bool) -> str:
+def _fit_note(fit: str, online: bool, source: str) -> str:
     if fit == FIT_TRAINING:
         how = "then learned as they went" if online else "then frozen, like the library"
-        return f"baselines were counted on the library's training logs, {how}"
+        return f"baselines were counted on {source}, {how}"
     if online:
         return ("baselines had no training logs: they started empty and learned as they went; "
                 "a library learned beforehand starts ahead of them")

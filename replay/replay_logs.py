@@ -102,9 +102,11 @@ def replay_logs(logs: Iterable[str | os.PathLike], *, library: str | os.PathLike
         warnings.simplefilter("ignore", TruncatedLogWarning)  # reported in the result instead
         warnings.simplefilter("always", DataWarning)
         baselines, fit, salvaged = _fit_baselines(setup, baseline_logs, progress, reader)
+        source = "the --baseline-train logs" if baseline_logs else "the library's training logs"
         episodes = _read(logs, setup.spec, setup.vocabulary, progress, time_slice, reader)
         result = evaluate(setup.library, episodes, setup.vocabulary, online=online, top_k=top_k,
                           window=window, baselines=baselines, baseline_fit=fit,
+                          baseline_source=source,
                           keep_outcomes=keep_outcomes, on_episode=_progress_line if progress else None)
     result.warnings[:0] = setup.spec.warnings() + _learned_here(logs, setup.facts["provenance"], time_slice) \
         + ([] if online else _fresh_leaders(setup)) \

@@ -118,6 +118,19 @@ def test_a_truncated_baseline_training_log_is_warned_and_exits_3(pointer_log, tm
     assert "baselines: " in result.output and "broken.mcap: truncated or corrupt log" in result.output
 
 
+
+def test_replay_notes_name_the_baseline_training_logs_it_was_given(pointer_log, tmp_path):
+    """With --baseline-train the baselines were not counted on the library's training logs:
+    the note says which logs they were."""
+    library = tmp_path / "lib.parquet"
+    assert run("learn", "-q", pointer_log("simple", 300), "-o", library).exit_code == 0
+    held_out, other = pointer_log("simple", 200, seed=1), pointer_log("simple", 300, seed=2)
+    doc = json.loads(run("replay", "-q", "--json", library, held_out, "--baseline-train", other).stdout)
+    assert any("counted on the --baseline-train logs" in note for note in doc["notes"]), doc["notes"]
+    assert not any("library's training logs" in note for note in doc["notes"]), doc["notes"]
+    doc = json.loads(run("replay", "-q", "--json", library, held_out).stdout)
+    assert any("counted on the library's training logs" in note for note in doc["notes"]), doc["notes"]
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):
