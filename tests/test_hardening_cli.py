@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import os
 import struct
+import subprocess
+import sys
 
 import mcap_bytes as mb
 import pytest
@@ -385,3 +387,36 @@ def test_bounds_past_any_log_time_are_the_end_of_time(tmp_path):
                "--start", "1e300")
     assert late.exit_code == 1
     assert "1e300 to end of each log leaves no time of this log" in late.stderr.splitlines()[-1]
+
+
+# --- signals ------------------------------------------------------------------------------
+
+# Runs `slearn record pointer` in a fresh interpreter that sends itself a signal while the
+# output is being written (at its tenth message).
+_SIGNALLED = """
+import os, signal, sys
+from slearn.recorders import mcap_episode
+from slearn.cli import main
+write, written = mcap_episode.EpisodeWriter.write_encoded, []
+def write_then_signal(self, *args):
+    written.append(1)
+    if len(written) == 10:
+        assert os.path.exists(self._out.tmp_path)
+        os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+    return write(self, *args)
+mcap_episode.EpisodeWriter.write_encoded = write_then_signal
+main(["record", "pointer", "--condition", "simple", "--trials", "50", "-o", sys.argv[2]])
+"""
+
+
+@pytest.mark.parametrize("name, code", [("SIGTERM", 143), ("SIGHUP", 129), ("SIGINT", 130)])
+def test_a_signal_stops_a_command_without_leaving_its_temporary_file(tmp_path, name, code):
+    """SIGTERM (what `kill`, systemd and job schedulers send) and SIGHUP (a closed terminal)
+    stop a command as Ctrl-C does: the half-written output is removed, nothing is left
+    next to it, and the exit status is 128 + the signal."""
+    target = tmp_path / "run.mcap"
+    done = subprocess.run([sys.executable, "-c", _SIGNALLED, name, str(target)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == code, done.stderr
+    assert list(tmp_path.iterdir()) == [], sorted(p.name for p in tmp_path.iterdir())
+    assert done.stderr.strip().splitlines()[-1] in (f"slearn: stopped by {name}", "slearn: interrupted")

@@ -4,13 +4,17 @@ Commands parse options, call one library function and render its result: results
 stdout, progress and diagnostics on stderr, ``--json`` prints one JSON document only.
 Exit codes: 0 ok, 1 bad input (``SlearnError``, or a file the system cannot read or
 write), 2 usage error (click), 3 a truncated log was salvaged, 4 a ``--fail-under``
-threshold was missed.
+threshold was missed; 128 + N when stopped by signal N (SIGINT 130, SIGTERM 143,
+SIGHUP 129), after removing the temporary file of any output being written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import signal
 import sys
+import threading
 
 import click
 
@@ -38,6 +42,39 @@ _COMMANDS = {
 }
 
 
+class Stopped(BaseException):
+    """A signal asked the command to stop (SIGTERM, SIGHUP): raised where the program is,
+    like ``KeyboardInterrupt``, so that outputs being written discard their temporary
+    files on the way out instead of leaving them behind."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_stopped(signum: int, frame: object) -> None:
+    raise Stopped(signum)
+
+
+@contextlib.contextmanager
+def _stop_on_signals():
+    """SIGTERM and SIGHUP raise :class:`Stopped` while a command runs (their default kills
+    the process without cleanup). Handlers someone else installed are left alone; only the
+    main thread can install any."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(signum) is signal.SIG_DFL:
+            previous[signum] = signal.signal(signum, _raise_stopped)
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 class _Group(click.Group):
     """Imports a subcommand when it is called; turns slearn's own errors into a one-line
     message and an exit code."""
@@ -59,7 +96,8 @@ class _Group(click.Group):
 
     def invoke(self, ctx: click.Context):
         try:
-            return super().invoke(ctx)
+            with _stop_on_signals():
+                return super().invoke(ctx)
         except SlearnError as err:
             click.echo(f"slearn: error: {err}", err=True)
             sys.exit(err.exit_code)
@@ -70,6 +108,9 @@ class _Group(click.Group):
         except KeyboardInterrupt:
             click.echo("slearn: interrupted", err=True)
             sys.exit(130)
+        except Stopped as stop:
+            click.echo(f"slearn: stopped by {stop}", err=True)
+            sys.exit(128 + stop.signum)
         finally:
             compile_notice()
 
