@@ -133,6 +133,25 @@ def test_replay_notes_name_the_baseline_training_logs_it_was_given(pointer_log, 
     doc = json.loads(run("replay", "-q", "--json", library, held_out).stdout)
     assert any("counted on the library's training logs" in note for note in doc["notes"]), doc["notes"]
 
+
+def test_merge_refuses_counts_that_would_overflow_instead_of_writing_a_library_it_refuses(pointer_log, tmp_path):
+    """Counts past int64 are only reachable by editing a file; merging two such libraries
+    wrapped them negative and wrote a library that load refused."""
+    from slearn.io.library_file import save_library
+
+    library = tmp_path / "lib.parquet"
+    assert run("learn", "-q", pointer_log("simple", 200), "-o", library).exit_code == 0
+    loaded = load_library(library)
+    tree = loaded.library.tree
+    tree.count[: int(tree.size[1])] = 2**62 + 1
+    big = tmp_path / "big.parquet"
+    save_library(big, loaded.library, loaded.vocabulary, spec=loaded.spec, params=loaded.params,
+                 provenance=loaded.provenance)
+    message = one_line(run("merge", big, library, big, "-o", tmp_path / "merged.parquet"))
+    assert "cannot merge" in message and "pattern counts would sum past 9,223,372,036,854,775,807" in message
+    assert "re-create it with slearn learn" in message
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".parquet") == ["big.parquet", "lib.parquet"]
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):

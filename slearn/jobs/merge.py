@@ -58,9 +58,14 @@ def merge_libraries(a: LoadedLibrary, b: LoadedLibrary, *, consume: bool = False
     Raises:
         SpecError: the libraries are incompatible (spec, channels, roles, parameters).
     """
+    names = f"{a.path or 'library A'} and {b.path or 'library B'}"
     reason = _incompatibility(a, b)
     if reason:
-        raise SpecError(f"cannot merge {a.path or 'library A'} and {b.path or 'library B'}: {reason}")
+        raise SpecError(f"cannot merge {names}: {reason}")
+    overflow = _overflow(a.library, b.library)
+    if overflow:
+        raise InputError(f"cannot merge {names}: {overflow}; no library learned from logs counts "
+                         "that high, so one of them was edited: re-create it with slearn learn")
     vocabulary, symbol_map = _merged_vocabulary(a.vocabulary, b.vocabulary)
     tokens, token_map = _merged_tokens(a.library.tokens, b.library.tokens, symbol_map)
     library: PatternLibrary | LiteralLibrary
@@ -99,6 +104,36 @@ def merge_files(paths: list[str | os.PathLike], output: str | os.PathLike, *,
         warnings.warn(DataWarning(message), stacklevel=2)
     return save_library(output, merged.library, merged.vocabulary, spec=merged.spec,
                         params=merged.params, provenance=merged.provenance, overwrite=overwrite)
+
+
+def _overflow(a: PatternLibrary | LiteralLibrary, b: PatternLibrary | LiteralLibrary) -> str | None:
+    """What of ``a`` and ``b`` would sum past its integer type in the merge (counts,
+    fresh counts, the clock, alarms, calibration), else ``None``: merging then writes
+    no library that loading would refuse."""
+    sums = [("clocks", a.clock, b.clock, np.int64), ("forgotten counts", a.forgotten, b.forgotten, np.int64)]
+    for name, x, y in _largest(a, b):
+        sums.append((name, x, y, np.int64))
+    ma, mb = getattr(a, "mixer", None), getattr(b, "mixer", None)
+    if ma is not None and mb is not None:
+        sums += [("alarm counts", int(ma.epoch.max(initial=0)), int(mb.epoch.max(initial=0)), ma.epoch.dtype),
+                 ("calibration counts", int(ma.calibration.max(initial=0)), int(mb.calibration.max(initial=0)),
+                  np.int64)]
+    for name, x, y, kind in sums:
+        if int(x) + int(y) > np.iinfo(kind).max:
+            return f"their {name} would sum past {np.iinfo(kind).max:,} ({int(x):,} + {int(y):,})"
+    return None
+
+
+def _largest(a: PatternLibrary | LiteralLibrary, b: PatternLibrary | LiteralLibrary) -> list[tuple[str, int, int]]:
+    """The largest pattern count (and fresh count) of each library."""
+    def counts(library):
+        if isinstance(library, LiteralLibrary):
+            return library.export()["count"], np.zeros(0, np.int64)
+        n = int(library.tree.size[1])
+        return library.tree.count[:n], library.tree.fresh[:n]
+    (ca, fa), (cb, fb) = counts(a), counts(b)
+    return [("pattern counts", int(ca.max(initial=0)), int(cb.max(initial=0))),
+            ("fresh counts", int(fa.max(initial=0)), int(fb.max(initial=0)))]
 
 
 def _incompatibility(a: LoadedLibrary, b: LoadedLibrary) -> str | None:
