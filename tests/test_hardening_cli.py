@@ -152,6 +152,25 @@ def test_merge_refuses_counts_that_would_overflow_instead_of_writing_a_library_i
     assert "re-create it with slearn learn" in message
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".parquet") == ["big.parquet", "lib.parquet"]
 
+
+def test_an_existing_folder_given_as_an_output_is_one_line_naming_it(pointer_log, tmp_path):
+    """Every output option: a folder is bad input (one line, exit 1, what to do), not a
+    four-line usage message, and is refused even with --force."""
+    log = pointer_log("simple", 200)
+    library = tmp_path / "lib.parquet"
+    assert run("learn", "-q", log, "-o", library).exit_code == 0
+    folder = tmp_path / "out"
+    folder.mkdir()
+    for args in (("learn", "-q", log, "-o", folder), ("learn", "-q", log, "-o", folder, "--force"),
+                 ("merge", library, library, "-o", folder),
+                 ("record", "pointer", "--condition", "simple", "--trials", "10", "-o", folder),
+                 ("info", log, "--suggest-spec", folder),
+                 ("replay", "-q", library, log, "--plot", folder),
+                 ("replay", "-q", library, log, "--report", folder),
+                 ("control", "--condition", "simple", "--record", folder)):
+        assert one_line(run(*args)) == f"slearn: error: {folder} is a folder: give a file name to write", args
+    assert list(folder.iterdir()) == []
+
 # --- salvage semantics --------------------------------------------------------------------
 
 def _damaged_pointer(tmp_path, good_log):

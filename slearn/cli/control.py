@@ -60,7 +60,7 @@ from slearn.recorders.pointer import CONDITIONS
               help="Steps of history in a planning state (default: 1 on the pointer, 0 on Gymnasium).")
 @click.option("--half-life", type=FiniteFloat(0), default=0.0, show_default=True,
               help="Fade library weights with this half-life in steps (0: never).")
-@click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--record", "record_path", type=click.Path(path_type=Path), default=None,
               help="Log slearn's run to this MCAP file (action, observation and goal channels).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --record file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON document.")

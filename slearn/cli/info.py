@@ -88,7 +88,7 @@ def _as_text(result, show_fields: bool) -> str:
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @click.option("--fields/--no-fields", default=True, help="List every field with its values.")
-@click.option("--suggest-spec", "spec_out", type=click.Path(dir_okay=False),
+@click.option("--suggest-spec", "spec_out", type=click.Path(),
               help="Write a spec (TOML) that learns the logs as written: roles, fields and bins "
                    "guessed from the data, the reasons in comments.")
 @click.option("--force", is_flag=True, help="Overwrite the --suggest-spec file.")

@@ -77,7 +77,7 @@ def _progress(total: int):
 
 @click.command("learn")
 @click.argument("logs", nargs=-1, required=True)
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The library file (Parquet) to write.")
 @click.option("--spec", "spec_path", type=click.Path(dir_okay=False),
               help="Channel spec (TOML), or auto: the spec `slearn info --suggest-spec` writes, "

@@ -12,7 +12,7 @@ from slearn.jobs.merge import merge_files
 
 @click.command("merge")
 @click.argument("libraries", nargs=-1, required=True, type=click.Path())
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The merged library file (Parquet) to write.")
 @click.option("--force", is_flag=True, help="Overwrite the output file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")

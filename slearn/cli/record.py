@@ -33,7 +33,7 @@ def command() -> None:
               help="Half-width of the uniform move error (error), 0 to 10.")
 @click.option("--delay-prob", type=FiniteFloat(0, 1), default=0.5, show_default=True,
               help="Chance that a command is delayed by one trial (delay), 0 to 1.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="The MCAP file to write.")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")
@@ -83,7 +83,7 @@ def _parse_roles(options: tuple[str, ...]) -> dict[str, str]:
               help="Channel of tokens written without NAME=.")
 @click.option("--tick-ms", type=FiniteFloat(1e-6, 86_400_000), default=TICK_NS / 1e6,
               show_default=True, help="Log time between ticks of token and SPMF sequences.")
-@click.option("--spec-out", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--spec-out", type=click.Path(path_type=Path),
               help="Also write the TOML spec that learns the output.")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON document.")

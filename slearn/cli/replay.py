@@ -66,8 +66,8 @@ def _check_distinct(outputs: list[tuple[str, str | None]]) -> None:
               help="Training log for the baselines (repeat; default: the library's own inputs "
                    "when still on disk).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document (slearn.replay/3).")
-@click.option("--plot", type=click.Path(dir_okay=False), help="Write the learning curves (PNG).")
-@click.option("--report", type=click.Path(dir_okay=False), help="Write a self-contained HTML report.")
+@click.option("--plot", type=click.Path(), help="Write the learning curves (PNG).")
+@click.option("--report", type=click.Path(), help="Write a self-contained HTML report.")
 @click.option("--write-mcap", "write_mcap", type=click.Path(),
               help="Write the log annotated with /slearn/prediction, /slearn/correct and "
                    "/slearn/surprise (a folder for several logs).")
