@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pyarrow.parquet as pq
 import pytest
@@ -122,7 +123,9 @@ MUTATIONS = [
 def test_a_damaged_field_is_refused_by_every_reader_with_one_line_naming_it(good, tmp_path, change, message):
     path = edited(good, tmp_path, change)
     for function in (load_library, describe, read_info):
-        assert message in one_line_error(function, path)
+        error = one_line_error(function, path)
+        assert message in error
+        assert re.search(r": (re-create|upgrade slearn|make libraries with)", error), error  # says what to do
     result = CliRunner().invoke(main, ["info", str(path)])
     assert result.exit_code == 1 and message in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
@@ -227,3 +230,44 @@ def test_a_negative_pattern_count_is_refused(good, tmp_path):
                 writer.write_table(rows)
     for function in (load_library, describe):
         assert "a pattern count is not positive" in one_line_error(function, bad)
+
+
+
+def _body_edited(good, tmp_path, change):
+    """The library with its row groups changed by ``change(groups) -> groups``, header kept."""
+    source = pq.ParquetFile(good)
+    groups = change([source.read_row_group(i) for i in range(source.num_row_groups)])
+    path = tmp_path / "body.parquet"
+    with pq.ParquetWriter(path, source.schema_arrow) as out:
+        for group in groups:
+            out.write_table(group, row_group_size=max(1, group.num_rows))
+    return path
+
+
+def _fewer_rows(groups):
+    return [*groups[:-1], groups[-1].slice(0, groups[-1].num_rows - 1)]
+
+
+def _pattern_token(groups, value):
+    import pyarrow as pa
+
+    for g, group in enumerate(groups):
+        rows = group.column("pattern").to_pylist()
+        first = next((i for i, row in enumerate(rows) if row), None)
+        if first is not None:
+            rows[first] = [value, *rows[first][1:]]
+            index = group.schema.get_field_index("pattern")
+            groups[g] = group.set_column(index, group.schema.field(index), pa.array(rows, group.schema.field(index).type))
+            return groups
+    raise AssertionError("no pattern")
+
+
+@pytest.mark.parametrize("change, problem", [
+    (_fewer_rows, "rows, but its header says"),
+    (lambda groups: _pattern_token(groups, 10 ** 6), "a pattern names a token that does not exist"),
+])
+def test_damaged_tables_are_one_line_saying_to_re_create_the_library(good, tmp_path, change, problem):
+    path = _body_edited(good, tmp_path, change)
+    error = one_line_error(load_library, path)
+    assert "corrupted pattern library (" in error and problem in error, error
+    assert error.endswith("re-create it with `slearn learn`"), error

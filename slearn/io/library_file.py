@@ -428,12 +428,12 @@ def _row_groups(parquet: pq.ParquetFile, doc: dict, path: Path) -> dict[str, lis
         group = parquet.metadata.row_group(i)
         k = int(np.searchsorted(bounds, start, side="right")) - 1
         if k >= len(TABLES) or start + group.num_rows > bounds[k + 1]:
-            raise LibraryFormatError(f"{path}: row groups do not match the library's tables")
+            raise _corrupt(path, "its row groups do not match the library's tables")
         _check_group_table(parquet, i, TABLES[k], path)
         groups[TABLES[k]].append(i)
         start += group.num_rows
     if start != bounds[-1]:
-        raise LibraryFormatError(f"{path}: {start} rows, but the metadata says {bounds[-1]}")
+        raise _corrupt(path, f"{start:,} rows, but its header says {bounds[-1]:,}")
     return groups
 
 
@@ -441,7 +441,7 @@ def _check_group_table(parquet: pq.ParquetFile, i: int, name: str, path: Path) -
     # The column is read, not its statistics: pyarrow aborts the process on some damaged
     # column metadata (row_group(i).column(j)) where reading raises an error.
     if parquet.read_row_group(i, columns=["table"]).column(0).unique().to_pylist() != [name]:
-        raise LibraryFormatError(f"{path}: a row group of table {name!r} holds other rows")
+        raise _corrupt(path, f"a row group of table {name!r} holds other rows")
 
 
 def _read(parquet: pq.ParquetFile, groups: list[int], columns: list[str]) -> pa.Table:
@@ -455,7 +455,7 @@ def _list_parts(column: pa.ChunkedArray, name: str, path: Path) -> tuple[np.ndar
     """``(offsets int64, values)`` of a list column, slice offsets honoured."""
     array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
     if array.null_count:
-        raise LibraryFormatError(f"{path}: column {name!r} has missing values")
+        raise _corrupt(path, f"column {name!r} has missing values")
     offsets = np.asarray(array.offsets).astype(np.int64)
     values = np.asarray(array.values)[offsets[0]:offsets[-1]] if len(offsets) else np.zeros(0)
     return offsets - offsets[0], values
@@ -463,7 +463,7 @@ def _list_parts(column: pa.ChunkedArray, name: str, path: Path) -> tuple[np.ndar
 
 def _numbers(column: pa.ChunkedArray, name: str, path: Path) -> np.ndarray:
     if column.null_count:
-        raise LibraryFormatError(f"{path}: column {name!r} has missing values")
+        raise _corrupt(path, f"column {name!r} has missing values")
     return column.to_numpy()
 
 
@@ -497,7 +497,7 @@ def _read_vocabulary(parquet: pq.ParquetFile, groups: list[int], doc: dict, path
     columns = [table.column(c).to_pylist() for c in table.column_names]
     for i, (channel, *value) in enumerate(zip(*columns)):
         if vocabulary.symbol(channel, _decode_value(*value)) != i:
-            raise LibraryFormatError(f"{path}: vocabulary row {i} repeats an earlier value")
+            raise _corrupt(path, f"vocabulary row {i} repeats an earlier value")
     return vocabulary
 
 
@@ -508,7 +508,7 @@ def _read_tokens(parquet: pq.ParquetFile, groups: list[int], n_symbols: int, pat
     symbols = symbols.astype(np.int32, copy=False)
     if len(symbols) and (symbols.min() < 0 or symbols.max() >= n_symbols) or np.any(kinds > 1) \
             or np.any(kinds < 0):
-        raise LibraryFormatError(f"{path}: the token table names symbols or kinds that do not exist")
+        raise _corrupt(path, "the token table names symbols or kinds that do not exist")
     return TokenTable.from_export(offsets, symbols, kinds)
 
 
@@ -527,7 +527,7 @@ def _read_views(parquet: pq.ParquetFile, groups: list[int], max_context: int, ve
     calibration = _list_parts(table.column("view_calibration"), "view_calibration", path)[1] if calibrated \
         else np.zeros(2 * CELLS * n, np.int64)
     if len(detector) != 3 * n or len(weights) != 3 * max_context * n or None in names:
-        raise LibraryFormatError(f"{path}: the view table does not match max_length {max_context}")
+        raise _corrupt(path, f"the view table does not match max_length {max_context}")
     if len(calibration) != 2 * CELLS * n or np.any(calibration < 0) \
             or np.any(calibration[0::2] > calibration[1::2]):
         raise LibraryFormatError(f"{path}: the view table's calibration counts are not hits and trials "
@@ -564,7 +564,7 @@ def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
     offsets, tokens = _list_parts(table.column("pattern"), "pattern", path)
     tokens = tokens.astype(np.int32, copy=False)
     if len(tokens) and (tokens.min() < 0 or tokens.max() >= n_tokens):
-        raise LibraryFormatError(f"{path}: a pattern names a token that does not exist")
+        raise _corrupt(path, "a pattern names a token that does not exist")
     arrays = {"pattern_offsets": offsets, "pattern_tokens": tokens}
     for name in ("count", "last_seen", *extra):
         arrays["pattern_parent" if name == "parent" else name] = _numbers(
@@ -572,6 +572,11 @@ def _read_patterns(parquet: pq.ParquetFile, groups: list[int], literal: bool,
     if len(arrays["count"]) and arrays["count"].min() < 1:
         raise LibraryFormatError(f"{path}: a pattern count is not positive: re-create the library")
     return arrays
+
+
+def _corrupt(path: Path, problem: str) -> LibraryFormatError:
+    """The one-line error for a library whose tables contradict themselves."""
+    return LibraryFormatError(f"{path}: corrupted pattern library ({problem}): re-create it with `slearn learn`")
 
 
 def load_library(path: str | os.PathLike) -> LoadedLibrary:
@@ -604,7 +609,7 @@ def _literal(arrays, tokens: TokenTable, facts: dict, params: dict, path: Path) 
     max_length = int(params["max_length"])
     if len(lengths) and (lengths.min() < 3 or lengths.max() > 2 * max_length + 1
                          or np.any(lengths % 2 == 0)):
-        raise LibraryFormatError(f"{path}: a pattern is not O A O ... O of at most {max_length} steps")
+        raise _corrupt(path, f"a pattern is not O A O ... O of at most {max_length} steps")
     return LiteralLibrary.from_export(arrays, tokens, int(facts["clock"]), max_length,
                                       params["max_patterns"])
 
@@ -618,11 +623,12 @@ def _occurrence(parquet, groups, arrays, tokens: TokenTable, vocabulary: Vocabul
     views = arrays["view"]
     if len(lengths) and (lengths.min() < 2 or lengths.max() > max_context + 1
                          or views.min() < 0 or views.max() >= len(names)):
-        raise LibraryFormatError(f"{path}: a pattern does not fit the library's views and max_length")
+        raise _corrupt(path, "a pattern does not fit the library's views and max_length")
     try:
         scopes = check_scopes(params.get("action_scopes"), vocabulary if params.get("factored") else None)
     except ParameterError as err:
-        raise LibraryFormatError(f"{path}: field params.action_scopes: {err}") from err
+        raise LibraryFormatError(f"{path}: field params.action_scopes: {err}: re-create the library "
+                                 "with `slearn learn`") from err
     return PatternLibrary.from_export(
         arrays, tokens=tokens, clock=int(facts["clock"]), view_names=names, mixer=mixer,
         max_length=max_length, max_patterns=params["max_patterns"],

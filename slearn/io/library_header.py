@@ -188,10 +188,11 @@ def validate_header(doc: Any, path: str | PathLike) -> None:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
         shown = repr(doc.get("format"))[:60] if isinstance(doc, dict) else None
         raise LibraryFormatError(f"{path}: a Parquet file, but not a slearn pattern library "
-                                 f"(format {shown})")
+                                 f"(format {shown}): make libraries with `slearn learn`")
     version = doc.get("version")
     if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise LibraryFormatError(f"{path}: invalid library format version {repr(version)[:60]}")
+        raise LibraryFormatError(f"{path}: invalid library format version {repr(version)[:60]}: "
+                                 "re-create the library with `slearn learn`")
     if version > FORMAT_VERSION:
         raise LibraryFormatError(f"{path}: library format version {version} is newer than this "
                                  f"slearn {__version__} reads (up to {FORMAT_VERSION}): upgrade slearn")
