@@ -61,7 +61,8 @@ def merge_libraries(a: LoadedLibrary, b: LoadedLibrary, *, consume: bool = False
     names = f"{a.path or 'library A'} and {b.path or 'library B'}"
     reason = _incompatibility(a, b)
     if reason:
-        raise SpecError(f"cannot merge {names}: {reason}")
+        raise SpecError(f"cannot merge {names}: {reason}: only libraries learned with the same spec and "
+                        "options merge; learn one again with the other's (`slearn info --json` shows them)")
     overflow = _overflow(a.library, b.library)
     if overflow:
         raise InputError(f"cannot merge {names}: {overflow}; no library learned from logs counts "
