@@ -448,7 +448,7 @@ def test_merge_refuses_another_max_length():
     short = PatternLibrary(3)
     with pytest.raises(SpecError, match="cannot merge a.parquet and library B: max_length 6 vs 3"):
         merge_libraries(loaded(v, PatternLibrary(), path="a.parquet"), loaded(v, short))
-    with pytest.raises(SpecError, match=r"learn one again with the other's \(`slearn info` shows them\)$"):
+    with pytest.raises(SpecError, match=r"learn one again with the other's \(`slearn info --json` shows them\)$"):
         merge_libraries(loaded(v, PatternLibrary(), path="a.parquet"), loaded(v, short))
 
 
