@@ -458,3 +458,14 @@ def test_a_signal_stops_a_command_without_leaving_its_temporary_file(tmp_path, n
     assert done.returncode == code, done.stderr
     assert list(tmp_path.iterdir()) == [], sorted(p.name for p in tmp_path.iterdir())
     assert done.stderr.strip().splitlines()[-1] in (f"slearn: stopped by {name}", "slearn: interrupted")
+
+
+def test_record_stream_refuses_one_file_as_both_outputs(tmp_path):
+    """-o and --spec-out on one path: the spec would overwrite the log just written (it said
+    the path was 'also an input')."""
+    source = tmp_path / "s.txt"
+    source.write_text("a b a b\nb a b a\n")
+    target = tmp_path / "s.mcap"
+    message = one_line(run("record", "stream", source, "-o", target, "--spec-out", target))
+    assert message == f"slearn: error: -o and --spec-out both write {target}: give each output its own path"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.txt"]

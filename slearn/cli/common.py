@@ -4,12 +4,13 @@ and warnings printed once each on stderr."""
 from __future__ import annotations
 
 import contextlib
+import os
 import warnings
 from typing import Callable, Iterator
 
 import click
 
-from slearn.errors import DataWarning
+from slearn.errors import DataWarning, InputError
 from slearn.io.slicing import TRAIN, TimeSlice, time_slice
 
 CHANNEL_HELP = (
@@ -107,3 +108,15 @@ def reader_for(workers: int | None, address: str | None, what: str | None) -> It
 
     with ray_session(workers, address) as ray:
         yield RayReader(ray, echo_progress if what else None, what or "read")
+
+
+def check_distinct_outputs(outputs: list[tuple[str, str | None]]) -> None:
+    """Refuse two outputs, ``(option, path)``, on one file (one would overwrite the other),
+    before any work."""
+    seen: dict[str, str] = {}
+    for option, path in outputs:
+        if path:
+            key = os.path.realpath(path)
+            if key in seen:
+                raise InputError(f"{seen[key]} and {option} both write {path}: give each output its own path")
+            seen[key] = option

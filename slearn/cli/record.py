@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from slearn.cli.common import check_distinct_outputs
 from slearn.cli.limits import MAX_TRIALS, FiniteFloat
 from slearn.errors import InputError
 from slearn.io.files import check_output
@@ -93,6 +94,7 @@ def stream(source: Path, output: Path, fmt: str, per_file: bool, roles: tuple[st
     """Convert a categorical sequence file (tokens, SPMF, CSV, JSON Lines) into one MCAP file
     holding each sequence as an episode."""
     if spec_out is not None:
+        check_distinct_outputs([("-o", str(output)), ("--spec-out", str(spec_out))])
         check_output(spec_out, force, inputs=[source, output])
     summary = convert_stream(source, output, fmt=fmt, per_file=per_file,
                              roles=_parse_roles(roles), channel=channel,

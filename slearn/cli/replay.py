@@ -10,7 +10,7 @@ from typing import cast
 import click
 
 from slearn.cli import EXIT_BELOW_THRESHOLD, EXIT_TRUNCATED
-from slearn.cli.common import make_slice, ray_options, reader_for, slice_options, topic_list
+from slearn.cli.common import check_distinct_outputs, make_slice, ray_options, reader_for, slice_options, topic_list
 from slearn.cli.limits import LENGTH, MAX_TOP_K, FiniteFloat
 from slearn.core.library import DEFAULT_MAX_LENGTH
 from slearn.errors import InputError
@@ -39,17 +39,6 @@ def _check_outputs(paths: list, force: bool, inputs: list[str]) -> None:
     for path in paths:
         if path:
             check_output(path, force, inputs)
-
-
-def _check_distinct(outputs: list[tuple[str, str | None]]) -> None:
-    """Refuse two outputs on one file (one would overwrite the other), before replaying."""
-    seen: dict[str, str] = {}
-    for option, path in outputs:
-        if path:
-            key = os.path.realpath(path)
-            if key in seen:
-                raise InputError(f"{seen[key]} and {option} both write {path}: give each output its own path")
-            seen[key] = option
 
 
 @click.command("replay")
@@ -112,7 +101,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], online: bool, spec: str 
 
         outputs += [("--write-mcap", str(p)) for t in annotated_paths(logs, write_mcap) for p in (t, layout_path(t))]
     _check_outputs([path for _, path in outputs], force, inputs)
-    _check_distinct(outputs)
+    check_distinct_outputs(outputs)
     with reader_for(workers, ray_address, None if quiet else "read") as reader:
         evaluation = replay_logs(logs, library=library, spec=_spec(spec, library, topics),
                                  online=online, top_k=top_k, window=window, max_length=max_length,
