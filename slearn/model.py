@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 import warnings
 from contextlib import contextmanager
-from typing import Any, Hashable, Iterable, Iterator, Mapping, Sequence
+from typing import AbstractSet, Any, Hashable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -510,7 +510,11 @@ def _path(path) -> str | os.PathLike:
 
 
 def _iterable(value, what: str):
-    """``iter(value)``, or a one-line error saying what was expected."""
+    """``iter(value)``, or a one-line error saying what was expected: an ordered iterable
+    (a set or a mapping has no order a sequence could be read in)."""
+    if isinstance(value, (AbstractSet, Mapping)):
+        raise ParameterError(f"{what} must be ordered (a list, tuple, str or iterator), "
+                             f"not a {type(value).__name__}")
     try:
         return iter(value)
     except TypeError:

@@ -258,6 +258,13 @@ def test_bad_containers_channels_and_k_are_refused_in_one_line():
              (lambda: model.rank("ab", k=0), "not 0"),
              (lambda: model.predict_many(None), "histories must be iterable"),
              (lambda: model.predict_many(["ab", 5]), "a history of items must be iterable, not int"),
+             (lambda: model.predict({"a", "b"}), "a history of items must be ordered .a list, tuple, str or "
+              "iterator., not a set"),
+             (lambda: model.rank({"a": 1, "b": 2}), "a history of items must be ordered .* not a dict"),
+             (lambda: model.predict_many({"ab", "ba"}), "histories must be ordered .* not a set"),
+             (lambda: model.learn(frozenset("ab")), "a sequence of items must be ordered .* not a frozenset"),
+             (lambda: steps.predict_step({({}, {"pos": 1}).__repr__()}, {"cmd": "R"}),
+              "a history of steps must be ordered .* not a set"),
              (lambda: steps.learn_steps(None), "steps must be iterable"),
              (lambda: steps.predict_step(None, {"cmd": "R"}), "a history of steps must be iterable"),
              (lambda: steps.predict_step([5], {"cmd": "R"}), "a step is .actions, observations."),
