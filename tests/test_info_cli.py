@@ -178,3 +178,20 @@ def test_an_angle_in_degrees_on_a_full_turn_grid_is_suggested_wrapping(tmp_path)
     bins = entry.symbolizer
     assert bins.wrap and bins.range == (0.0, 360.0) and bins.count == 36 and bins.unit == "deg"
     assert bins.symbol_value(355) == 35 and bins.symbol_value(365) == 0  # (past the turn: wrapped)
+
+
+@pytest.mark.parametrize("field, values, expected", [
+    # off any grid (the pointer's error condition): the name, or a span of one turn of degrees
+    ("angle_deg", lambda i: (i * 47.3) % 360.0, ((0.0, 360.0), "deg")),
+    ("heading", lambda i: (i * 47.3) % 360.0 - 180.0, ((-180.0, 180.0), "deg")),
+    ("yaw", lambda i: (i * 0.713) % 6.28 - 3.14, ((-3.141592653589793, 3.141592653589793), "rad")),
+    ("theta_rad", lambda i: i * 0.713, ((0.0, 6.283185307179586), "rad")),  # turns past one wrap onto it
+])
+def test_an_angle_off_any_grid_is_suggested_in_its_own_unit(tmp_path, field, values, expected):
+    """An angle in degrees off any grid was suggested as a range of 2 pi radians, so every
+    reading past 6.3 degrees wrapped."""
+    path = write_log(tmp_path / "a.mcap", [("/p", i * 100_000_000, {field: values(i)}) for i in range(300)])
+    assert run(path, "--suggest-spec", tmp_path / "s.toml").exit_code == 0
+    [entry] = [c for c in load_spec(tmp_path / "s.toml").channels if c.field == field]
+    bins = entry.symbolizer
+    assert bins.wrap and (bins.range, bins.unit) == expected and bins.count == 36

@@ -127,13 +127,28 @@ def _number_keys(info: FieldInfo) -> tuple[list[str], str]:
                     f"one bin per value, wrapping")
         return ([f"range = [{_num(low)}, {_num(high)}]", f"count = {count}"],
                 f"{info.n_distinct} values on a grid of step {step:g}: one bin per value")
-    if _is_angle(info) and hi - lo > 0.9 * TURN:
+    if _is_angle(info) and _in_degrees(info, hi - lo):
+        if hi - lo > 0.9 * 360.0:
+            low = 0.0 if lo >= -0.05 * 180.0 else -180.0
+            return ([f"range = [{_num(low)}, {_num(low + 360.0)}]", "count = 36", "wrap = true", 'unit = "deg"'],
+                    "an angle in degrees covering the full turn: 36 bins of 10 degrees, wrapping")
+    elif _is_angle(info) and hi - lo > 0.9 * TURN:  # radians; more than a turn wraps onto it
         low = 0.0 if lo >= -0.05 else -math.pi
         return ([f"range = [{_num(low)}, {_num(low + TURN)}]", "count = 36", "wrap = true", 'unit = "rad"'],
                 "an angle covering the full turn: 36 bins of 10 degrees, wrapping")
     return ([f"range = [{_num(lo)}, {_num(hi)}]", f"count = {CONTINUOUS_BINS}"],
             f"{CONTINUOUS_BINS} equal bins over the range seen ({info.min:.6g} .. {info.max:.6g}); "
             f"values outside it are counted and warned about")
+
+
+def _in_degrees(info: FieldInfo, span: float) -> bool:
+    """Whether an angle is in degrees: its name says so, or its values span about one
+    turn of degrees (in radians that would be some fifty turns, a joint spinning freely,
+    which is not read as degrees only when its name does not say ``rad``)."""
+    name = info.path.rsplit(".", 1)[-1].lower()
+    if re.search(r"rad", name):
+        return False
+    return bool(re.search(r"deg", name)) or 0.9 * 360.0 < span <= 1.01 * 360.0
 
 
 def _is_angle(info: FieldInfo) -> bool:
