@@ -240,3 +240,25 @@ def test_the_tasks_hash_the_logs_they_read_not_the_driver(local_ray, logs, tmp_p
     monkeypatch.setattr(learn_module, "log_record", no_hashing)
     learn_files(logs["pointer"][:2], tmp_path / "many.parquet", reader=RayReader(local_ray))
     assert (tmp_path / "many.parquet").read_bytes() == (tmp_path / "one.parquet").read_bytes()
+
+
+_SESSION_KEEPS_HANDLERS = """
+import signal
+from slearn.cli import _raise_stopped, _stop_on_signals
+from slearn.jobs.cluster import ray_session
+with _stop_on_signals():
+    with ray_session(workers=1):
+        kept = [signal.getsignal(s) is _raise_stopped for s in (signal.SIGTERM, signal.SIGHUP)]
+print(kept)
+"""
+
+
+def test_a_ray_session_keeps_the_command_lines_signal_handlers():
+    """ray.init replaces SIGTERM's handler with its own (a C stack trace, exit 1, the
+    temporary files of the output left): the session puts the command line's back."""
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", _SESSION_KEEPS_HANDLERS], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[True, True]", done.stdout

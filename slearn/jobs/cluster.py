@@ -20,8 +20,10 @@ it stops the job and is raised in the driver as it was raised in the task.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import tempfile
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -73,6 +75,7 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
     options = dict(include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     if address is not None:
         _check_reachable(address)
+    handlers = _own_signal_handlers()
     try:
         if address is not None:
             ray.init(address=address, **options)
@@ -82,10 +85,23 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
         where = f"the Ray cluster at {address}" if address else "a local Ray instance"
         raise ClusterError(f"cannot start or join {where}: {str(err).splitlines()[0] if str(err) else err!r} "
                            f"(start one with `ray start --head`)") from None
+    finally:
+        for signum, handler in handlers.items():  # ray.init replaced them
+            signal.signal(signum, handler)
     try:
         yield ray
     finally:
         ray.shutdown()
+
+
+def _own_signal_handlers() -> dict[int, Callable]:
+    """The Python handlers of SIGTERM and SIGHUP (``slearn``'s command line installs them
+    so that a stopped job removes its temporary files): ``ray.init`` replaces them with its
+    own, which prints a C stack trace and exits, so they are put back after it."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    return {signum: handler for signum, handler in handlers.items() if callable(handler)}
 
 
 def _check_reachable(address: str) -> None:
