@@ -430,9 +430,16 @@ def test_bounds_past_any_log_time_are_the_end_of_time(tmp_path):
 # --- signals ------------------------------------------------------------------------------
 
 # Runs `slearn record pointer` in a fresh interpreter that sends itself a signal while the
-# output is being written (at its tenth message).
+# output is being written (at its tenth message). The signal's disposition is first set as
+# a shell's foreground job has it (the test runner may run under nohup or in the
+# background, which ignore SIGHUP or SIGINT), or left ignored ("ignored").
 _SIGNALLED = """
 import os, signal, sys
+signum = getattr(signal, sys.argv[1])
+if sys.argv[3] == "ignored":
+    signal.signal(signum, signal.SIG_IGN)
+else:
+    signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
 from slearn.recorders import mcap_episode
 from slearn.cli import main
 write, written = mcap_episode.EpisodeWriter.write_encoded, []
@@ -440,7 +447,7 @@ def write_then_signal(self, *args):
     written.append(1)
     if len(written) == 10:
         assert os.path.exists(self._out.tmp_path)
-        os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+        os.kill(os.getpid(), signum)
     return write(self, *args)
 mcap_episode.EpisodeWriter.write_encoded = write_then_signal
 main(["record", "pointer", "--condition", "simple", "--trials", "50", "-o", sys.argv[2]])
@@ -453,11 +460,20 @@ def test_a_signal_stops_a_command_without_leaving_its_temporary_file(tmp_path, n
     stop a command as Ctrl-C does: the half-written output is removed, nothing is left
     next to it, and the exit status is 128 + the signal."""
     target = tmp_path / "run.mcap"
-    done = subprocess.run([sys.executable, "-c", _SIGNALLED, name, str(target)],
+    done = subprocess.run([sys.executable, "-c", _SIGNALLED, name, str(target), "default"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == code, done.stderr
     assert list(tmp_path.iterdir()) == [], sorted(p.name for p in tmp_path.iterdir())
     assert done.stderr.strip().splitlines()[-1] in (f"slearn: stopped by {name}", "slearn: interrupted")
+
+
+def test_a_signal_the_caller_ignores_stays_ignored(tmp_path):
+    """`nohup slearn ...` ignores SIGHUP: the command keeps running and writes its output."""
+    target = tmp_path / "run.mcap"
+    done = subprocess.run([sys.executable, "-c", _SIGNALLED, "SIGHUP", str(target), "ignored"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["run.mcap"] and "50 trials" in done.stdout
 
 
 def test_record_stream_refuses_one_file_as_both_outputs(tmp_path):
