@@ -246,6 +246,8 @@ _SESSION_KEEPS_HANDLERS = """
 import signal
 from slearn.cli import _raise_stopped, _stop_on_signals
 from slearn.jobs.cluster import ray_session
+for signum in (signal.SIGTERM, signal.SIGHUP):  # as a foreground job has them (CI runs under nohup)
+    signal.signal(signum, signal.SIG_DFL)
 with _stop_on_signals():
     with ray_session(workers=1):
         kept = [signal.getsignal(s) is _raise_stopped for s in (signal.SIGTERM, signal.SIGHUP)]
