@@ -18,8 +18,9 @@ Formats (``fmt="auto"`` picks one from the file name, then the content):
 Values that read as integers become integers (``"17"`` -> 17); in CSV also numbers
 (``"0.5"`` -> 0.5) so that numeric specs can bin them; everything else is text.
 
-Episodes: each sequence (a line, an SPMF ``-2`` sequence, a CSV/JSONL ``episode`` value)
-becomes one episode. All go into one MCAP file, one after the other in time (each starts
+Episodes: each sequence (a line, an SPMF ``-2`` sequence, a run of CSV/JSONL rows with
+one ``episode`` value; an episode that resumes after another began is refused) becomes
+one episode. All go into one MCAP file, one after the other in time (each starts
 one tick after the previous one ends), each started by an episode marker on
 ``/slearn/episode`` (:mod:`slearn.io.episodes`), so learn and replay parse them one by one.
 With ``per_file=True`` the whole file is one episode (no markers). Tick ``k`` of a
@@ -30,6 +31,10 @@ observation. The output holds one JSON channel per channel name
 (:data:`~slearn.recorders.live.EVENT_SCHEMA`, role in the channel metadata) and a
 ``slearn.core.stream`` metadata record (source, format, number of sequences); each episode
 marker names the source line its sequence starts on.
+
+Memory: the file is read twice, event by event (the first pass finds the channels, their
+roles and each sequence's time span; the second writes), so it does not grow with the
+file: only a line of a token or SPMF file is held whole.
 """
 
 from __future__ import annotations
@@ -38,7 +43,8 @@ import csv
 import json
 import os
 import re
-from dataclasses import asdict, dataclass, field
+from array import array
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
@@ -57,25 +63,20 @@ METADATA_NAME = "slearn.stream"
 _NS_PER_S = 1_000_000_000
 _INT = re.compile(r"[+-]?\d+\Z")
 _SPMF_TIME = re.compile(r"<(\d+)>\Z")
+_NO_EPISODE = object()
 
 
-@dataclass
+@dataclass(slots=True)
 class Event:
-    """One parsed event: log time, channel, value, role if the file says, source line."""
+    """One parsed event: log time, channel, value, role if the file says, source line, and
+    the sequence (episode) it belongs to, counted from 0 over the sequences with events."""
 
     time_ns: int
     channel: str
     value: Any
     role: str | None
     line: int
-
-
-@dataclass
-class Sequence:
-    """The events of one episode and the line it starts on."""
-
-    line: int
-    events: list[Event] = field(default_factory=list)
+    sequence: int = 0
 
 
 @dataclass(frozen=True)
@@ -118,18 +119,86 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
     """
     source = Path(source)
     fmt = detect_format(source) if fmt == "auto" else _known_format(fmt)
-    sequences = read_sequences(source, fmt, channel=channel, tick_ns=tick_ns)
-    channel_roles = resolve_roles(sequences, roles or {}, source)
+    layout = scan_events(source, fmt, channel=channel, tick_ns=tick_ns, roles=roles or {})
     path = output_path(Path(output), source)
     check_output(path, overwrite, inputs=[source])
-    starts = _lay_out(sequences, tick_ns)
-    marked = len(sequences) > 1 and not per_file
-    _write_episodes(sequences, starts, marked, path, channel_roles, overwrite,
-                    {"source": source.name, "format": fmt, "sequences": str(len(sequences)),
+    marked = layout.sequences > 1 and not per_file
+    _write_episodes(source, fmt, channel, tick_ns, layout, marked, path, overwrite,
+                    {"source": source.name, "format": fmt, "sequences": str(layout.sequences),
                      "slearn_version": __version__})
-    return StreamSummary(str(source), fmt, [str(path)], channel_roles,
-                         sum(len(s.events) for s in sequences), path.stat().st_size,
-                         len(sequences) if marked else 1)
+    return StreamSummary(str(source), fmt, [str(path)], layout.roles, layout.events,
+                         path.stat().st_size, layout.sequences if marked else 1)
+
+
+@dataclass
+class Layout:
+    """What the first pass over a sequence file found: each channel's role, and each
+    sequence's first source line and earliest and latest event time (a few numbers per
+    sequence: the events themselves are read again to be written, so memory does not grow
+    with the file)."""
+
+    roles: dict[str, str]
+    lines: array
+    lows: array
+    highs: array
+    events: int
+
+    @property
+    def sequences(self) -> int:
+        return len(self.lows)
+
+    def starts(self, tick_ns: int) -> Iterator[int]:
+        """Each sequence's start: one tick after the previous one ends (the first at its own)."""
+        end = None
+        for low, high in zip(self.lows, self.highs):
+            start = low if end is None else end + tick_ns
+            yield start
+            end = start + high - low
+
+
+def scan_events(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL, tick_ns: int = TICK_NS,
+                roles: dict[str, str] | None = None) -> Layout:
+    """Read a file of format ``fmt`` (not ``auto``) once: its :class:`Layout`.
+
+    Raises:
+        InputError: no events, a malformed line (named), or a role conflict.
+    """
+    roles = roles or {}
+    for name, role in roles.items():
+        check_role(name, role)
+    found: dict[str, tuple[str | None, int]] = {}
+    lines, lows, highs, events = array("q"), array("q"), array("q"), 0
+    for event in read_events(path, fmt, channel=channel, tick_ns=tick_ns):
+        events += 1
+        if event.sequence == len(lows):
+            lines.append(event.line)
+            lows.append(event.time_ns)
+            highs.append(event.time_ns)
+        else:
+            lows[-1], highs[-1] = min(lows[-1], event.time_ns), max(highs[-1], event.time_ns)
+        role, line = found.setdefault(event.channel, (None, 0))
+        if event.role is None or event.role == role or event.channel in roles:
+            continue
+        if role is not None:
+            raise InputError(f"{path}:{event.line}: channel {event.channel!r} is {event.role} "
+                             f"here but {role} on line {line}: give one role per channel")
+        found[event.channel] = (event.role, event.line)
+    if not events:
+        raise InputError(f"{path}: no events found (is it a {fmt} file?)")
+    unknown = sorted(set(roles) - set(found))
+    if unknown:
+        raise InputError(f"{path}: --role names channel {unknown[0]!r}, which has no event "
+                         f"(channels: {', '.join(list(found)[:12])})")
+    channel_roles = {name: roles.get(name) or role or DEFAULT_ROLE for name, (role, _) in found.items()}
+    return Layout(channel_roles, lines, lows, highs, events)
+
+
+def read_events(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL,
+                tick_ns: int = TICK_NS) -> Iterator[Event]:
+    """The events of a file of format ``fmt`` (not ``auto``), in file order, one at a time."""
+    readers = {"tokens": _token_events, "spmf": _spmf_events,
+               "csv": _csv_events, "jsonl": _jsonl_events}
+    return readers[fmt](path, channel, tick_ns)
 
 
 def stream_spec(summary: StreamSummary) -> Spec:
@@ -154,37 +223,6 @@ def detect_format(path: Path) -> str:
     return "tokens"
 
 
-def read_sequences(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL,
-                   tick_ns: int = TICK_NS) -> list[Sequence]:
-    """Parse a file of format ``fmt`` (not ``auto``) into its sequences, in file order."""
-    readers = {"tokens": _token_sequences, "spmf": _spmf_sequences,
-               "csv": _csv_sequences, "jsonl": _jsonl_sequences}
-    sequences = [s for s in readers[fmt](path, channel, tick_ns) if s.events]
-    if not sequences:
-        raise InputError(f"{path}: no events found (is it a {fmt} file?)")
-    return sequences
-
-
-def resolve_roles(sequences: list[Sequence], roles: dict[str, str], path: Path) -> dict[str, str]:
-    """Each channel's role, in first-seen order: option, else the file's, else observation."""
-    for name, role in roles.items():
-        check_role(name, role)
-    found: dict[str, tuple[str | None, int]] = {}
-    for event in (e for s in sequences for e in s.events):
-        role, line = found.setdefault(event.channel, (None, 0))
-        if event.role is None or event.role == role or event.channel in roles:
-            continue
-        if role is not None:
-            raise InputError(f"{path}:{event.line}: channel {event.channel!r} is {event.role} "
-                             f"here but {role} on line {line}: give one role per channel")
-        found[event.channel] = (event.role, event.line)
-    unknown = sorted(set(roles) - set(found))
-    if unknown:
-        raise InputError(f"{path}: --role names channel {unknown[0]!r}, which has no event "
-                         f"(channels: {', '.join(list(found)[:12])})")
-    return {name: roles.get(name) or role or DEFAULT_ROLE for name, (role, _) in found.items()}
-
-
 def output_path(output: Path, source: Path) -> Path:
     """The MCAP file a conversion writes (see :func:`convert_stream`)."""
     return output / f"{source.stem}.mcap" if output.is_dir() else output
@@ -196,29 +234,35 @@ def _known_format(fmt: str) -> str:
     return fmt
 
 
-def _write_episodes(sequences: list[Sequence], starts: list[int], marked: bool, path: Path,
-                    roles: dict[str, str], overwrite: bool, metadata: dict[str, str]) -> None:
-    """Write each sequence shifted to its start, after an episode marker when ``marked``."""
+def _write_episodes(source: Path, fmt: str, channel: str, tick_ns: int, layout: Layout, marked: bool,
+                    path: Path, overwrite: bool, metadata: dict[str, str]) -> None:
+    """Read the events again and write each sequence shifted to its start, after an episode
+    marker when ``marked``."""
+    start_of = layout.starts(tick_ns)
+    current, offset, events = -1, 0, 0
     with EventFile(path, overwrite=overwrite, metadata={METADATA_NAME: metadata}) as out:
-        for name, role in roles.items():  # every channel up front: one spec reads all
+        for name, role in layout.roles.items():  # every channel up front: one spec reads all
             out.register(name, role)
-        for k, (sequence, start) in enumerate(zip(sequences, starts)):
-            offset = start - min(e.time_ns for e in sequence.events)
-            if marked:
-                out.mark_episode(start, k, f"{metadata['source']}:{sequence.line}")
-            for event in sequence.events:
-                out.write(event.channel, event.time_ns + offset, event.value)
+        for event in read_events(source, fmt, channel=channel, tick_ns=tick_ns):
+            if event.sequence != current:
+                current = event.sequence
+                if current >= layout.sequences:
+                    raise _changed(source)
+                start = next(start_of)
+                offset = start - layout.lows[current]
+                if marked:
+                    out.mark_episode(start, current, f"{metadata['source']}:{layout.lines[current]}")
+            if event.channel not in layout.roles:
+                raise _changed(source)
+            out.write(event.channel, event.time_ns + offset, event.value)
+            events += 1
+        if events != layout.events:
+            raise _changed(source)
 
 
-def _lay_out(sequences: list[Sequence], tick_ns: int) -> list[int]:
-    """Start time of each sequence: one tick after the previous one ends (the first at its own)."""
-    starts, end = [], None
-    for sequence in sequences:
-        first = min(e.time_ns for e in sequence.events)
-        start = first if end is None else end + tick_ns
-        starts.append(start)
-        end = start + max(e.time_ns for e in sequence.events) - first
-    return starts
+def _changed(source: Path) -> InputError:
+    return InputError(f"{source}: the file changed while it was being converted (it is read twice): "
+                      "convert it again once nothing writes it")
 
 
 # --- reading ------------------------------------------------------------------------------
@@ -239,49 +283,46 @@ def _token_value(text: str) -> int | str:
     return int(text) if _INT.match(text) else text
 
 
-def _token_event(token: str, tick: int, channel: str, tick_ns: int, line: int) -> Event:
+def _token_event(token: str, tick: int, channel: str, tick_ns: int, line: int, sequence: int) -> Event:
     name, eq, value = token.partition("=")
     if eq and name and value:
-        return Event(tick * tick_ns, name, _token_value(value), None, line)
-    return Event(tick * tick_ns, channel, _token_value(token), None, line)
+        return Event(tick * tick_ns, name, _token_value(value), None, line, sequence)
+    return Event(tick * tick_ns, channel, _token_value(token), None, line, sequence)
 
 
-def _token_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequence]:
+def _token_events(path: Path, channel: str, tick_ns: int) -> Iterator[Event]:
+    sequence = 0
     for number, line in enumerate(_lines(path), 1):
         tokens = line.split()
         if not tokens or tokens[0].startswith("#"):
             continue
-        yield Sequence(number, [_token_event(t, k, channel, tick_ns, number)
-                                for k, t in enumerate(tokens)])
+        for k, token in enumerate(tokens):
+            yield _token_event(token, k, channel, tick_ns, number, sequence)
+        sequence += 1
 
 
-def _spmf_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequence]:
+def _spmf_events(path: Path, channel: str, tick_ns: int) -> Iterator[Event]:
+    """SPMF's events: ``-2`` or the end of a line ends a sequence; one without items is none."""
     names: dict[str, str] = {}
+    sequence = 0
     for number, line in enumerate(_lines(path), 1):
         text = line.strip()
         if text.startswith("@ITEM=") and text.count("=") >= 2:
             _, item, name = text.split("=", 2)
             names[item] = name
         elif text and text[0] not in "#%@":
-            yield from _spmf_line(text.split(), names, channel, tick_ns, number)
-
-
-def _spmf_line(tokens: list[str], names: dict[str, str], channel: str, tick_ns: int,
-               number: int) -> Iterator[Sequence]:
-    """The sequences of one SPMF line: ``-2`` or the end of the line ends a sequence."""
-    sequence, tick = Sequence(number), 0
-    for token in tokens:
-        if token == "-2":
-            yield sequence
-            sequence, tick = Sequence(number), 0
-        elif token == "-1":
-            tick += 1
-        elif _SPMF_TIME.match(token):
-            tick = int(token[1:-1])
-        else:
-            sequence.events.append(_token_event(names.get(token, token), tick, channel,
-                                                tick_ns, number))
-    yield sequence
+            tick, items = 0, 0
+            for token in text.split():
+                if token == "-2":
+                    sequence, tick, items = sequence + (items > 0), 0, 0
+                elif token == "-1":
+                    tick += 1
+                elif _SPMF_TIME.match(token):
+                    tick = int(token[1:-1])
+                else:
+                    yield _token_event(names.get(token, token), tick, channel, tick_ns, number, sequence)
+                    items += 1
+            sequence += items > 0
 
 
 def _number(text: str) -> int | float | str:
@@ -293,40 +334,41 @@ def _number(text: str) -> int | float | str:
         return text
 
 
-def _csv_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequence]:
+def _csv_events(path: Path, channel: str, tick_ns: int) -> Iterator[Event]:
     reader = csv.reader(_lines(path), delimiter="\t" if path.suffix.lower() == ".tsv" else ",")
     header = next(reader, None)
     if header is None:
         return
     columns = [c.strip().lower() for c in header]
     _check_columns(columns, path)
-    rows = []
-    for row in reader:
-        if not row or all(not c.strip() for c in row):
-            continue
-        where = f"{path}:{reader.line_num}"
-        if len(row) != len(columns):
-            raise InputError(f"{where}: {len(row)} fields, but the header has {len(columns)}")
-        record = dict(zip(columns, (c.strip() for c in row)))
-        record["value"] = _number(record["value"]) if record["value"] != "" else None
-        rows.append((reader.line_num, record))
-    yield from _episodes(rows, path)
+
+    def rows() -> Iterator[tuple[int, dict]]:
+        for row in reader:
+            if not row or all(not c.strip() for c in row):
+                continue
+            where = f"{path}:{reader.line_num}"
+            if len(row) != len(columns):
+                raise InputError(f"{where}: {len(row)} fields, but the header has {len(columns)}")
+            record = dict(zip(columns, (c.strip() for c in row)))
+            record["value"] = _number(record["value"]) if record["value"] != "" else None
+            yield reader.line_num, record
+    yield from _row_events(rows(), path)
 
 
-def _jsonl_sequences(path: Path, channel: str, tick_ns: int) -> Iterator[Sequence]:
-    rows = []
-    for number, line in enumerate(_lines(path), 1):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError as err:
-            raise InputError(f"{path}:{number}: not JSON ({err.msg})") from None
-        if not isinstance(record, dict):
-            raise InputError(f"{path}:{number}: expected a JSON object with time, channel, value")
-        _check_columns([k.lower() for k in record], path, number)
-        rows.append((number, {k.lower(): v for k, v in record.items()}))
-    yield from _episodes(rows, path)
+def _jsonl_events(path: Path, channel: str, tick_ns: int) -> Iterator[Event]:
+    def rows() -> Iterator[tuple[int, dict]]:
+        for number, line in enumerate(_lines(path), 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError as err:
+                raise InputError(f"{path}:{number}: not JSON ({err.msg})") from None
+            if not isinstance(record, dict):
+                raise InputError(f"{path}:{number}: expected a JSON object with time, channel, value")
+            _check_columns([k.lower() for k in record], path, number)
+            yield number, {k.lower(): v for k, v in record.items()}
+    yield from _row_events(rows(), path)
 
 
 def _check_columns(columns: list[str], path: Path, line: int = 1) -> None:
@@ -338,14 +380,30 @@ def _check_columns(columns: list[str], path: Path, line: int = 1) -> None:
                          "each event needs time, channel and value")
 
 
-def _episodes(rows: Iterable[tuple[int, dict]], path: Path) -> Iterator[Sequence]:
-    """Rows grouped by their ``episode`` (first-seen order); no column: one episode."""
-    episodes: dict[Any, Sequence] = {}
+def _row_events(rows: Iterable[tuple[int, dict]], path: Path) -> Iterator[Event]:
+    """Rows as events, a sequence per run of rows with one ``episode`` value (no column: one
+    sequence). An episode's rows come together: one that resumes after another began is
+    refused, since the file is converted as it is read."""
+    finished: set = set()
+    current: Any = _NO_EPISODE
+    sequence = -1
     for number, record in rows:
         event = _row_event(record, f"{path}:{number}", number)
         key = record.get("episode")
-        episodes.setdefault(key, Sequence(number)).events.append(event)
-    yield from episodes.values()
+        try:
+            hash(key)
+        except TypeError:
+            raise InputError(f"{path}:{number}: episode {key!r} is not a name or a number") from None
+        if key != current:
+            if key in finished:
+                raise InputError(f"{path}:{number}: episode {key!r} resumes after other episodes began: "
+                                 "give each episode's rows together (sort the file by episode, keeping "
+                                 "each episode's order)")
+            if current is not _NO_EPISODE:
+                finished.add(current)
+            current, sequence = key, sequence + 1
+        event.sequence = sequence
+        yield event
 
 
 def _row_event(record: dict, where: str, number: int) -> Event:
