@@ -253,3 +253,28 @@ def test_memory_does_not_grow_with_the_events(tmp_path, monkeypatch, fmt):
     assert large - small < 25 * 5 * 4_500, (small, large)
     if fmt == "csv one episode":
         assert large < 1.5 * small, (small, large)
+
+
+@pytest.mark.parametrize("change", ["fewer events", "another channel", "more sequences"])
+def test_a_file_that_changes_between_the_two_reads_is_refused_and_nothing_written(tmp_path, monkeypatch, change):
+    from slearn.recorders import record_stream
+
+    src = _write(tmp_path, "seq.txt", "a b c\nc b a\n")
+    read, calls = record_stream.read_events, []
+
+    def changing(*args, **kwargs):
+        calls.append(1)
+        events = list(read(*args, **kwargs))
+        if len(calls) == 2:
+            if change == "fewer events":
+                events = events[:-1]
+            elif change == "another channel":
+                events[-1].channel = "/other"
+            else:
+                events[-1].sequence = 2
+        return iter(events)
+
+    monkeypatch.setattr(record_stream, "read_events", changing)
+    with pytest.raises(InputError, match="seq.txt: the file changed while it was being converted"):
+        convert_stream(src, tmp_path / "seq.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq.txt"]
