@@ -119,11 +119,15 @@ def convert_stream(source: str | os.PathLike, output: str | os.PathLike, *, fmt:
     """
     source = Path(source)
     fmt = detect_format(source) if fmt == "auto" else _known_format(fmt)
-    layout = scan_events(source, fmt, channel=channel, tick_ns=tick_ns, roles=roles or {})
+
+    def events() -> Iterator[Event]:
+        return read_events(source, fmt, channel=channel, tick_ns=tick_ns)
+
+    layout = scan_events(events(), source, fmt, roles or {})
     path = output_path(Path(output), source)
     check_output(path, overwrite, inputs=[source])
     marked = layout.sequences > 1 and not per_file
-    _write_episodes(source, fmt, channel, tick_ns, layout, marked, path, overwrite,
+    _write_episodes(events(), source, layout, tick_ns, marked, path, overwrite,
                     {"source": source.name, "format": fmt, "sequences": str(layout.sequences),
                      "slearn_version": __version__})
     return StreamSummary(str(source), fmt, [str(path)], layout.roles, layout.events,
@@ -156,20 +160,19 @@ class Layout:
             end = start + high - low
 
 
-def scan_events(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL, tick_ns: int = TICK_NS,
-                roles: dict[str, str] | None = None) -> Layout:
-    """Read a file of format ``fmt`` (not ``auto``) once: its :class:`Layout`.
+def scan_events(events: Iterable[Event], path: Path, fmt: str, roles: dict[str, str]) -> Layout:
+    """The :class:`Layout` of the events of ``path``, a file of format ``fmt``;
+    ``roles`` are the ones given (``--role``), over the file's.
 
     Raises:
         InputError: no events, a malformed line (named), or a role conflict.
     """
-    roles = roles or {}
     for name, role in roles.items():
         check_role(name, role)
     found: dict[str, tuple[str | None, int]] = {}
-    lines, lows, highs, events = array("q"), array("q"), array("q"), 0
-    for event in read_events(path, fmt, channel=channel, tick_ns=tick_ns):
-        events += 1
+    lines, lows, highs, count = array("q"), array("q"), array("q"), 0
+    for event in events:
+        count += 1
         if event.sequence == len(lows):
             lines.append(event.line)
             lows.append(event.time_ns)
@@ -183,14 +186,14 @@ def scan_events(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL, tick_ns
             raise InputError(f"{path}:{event.line}: channel {event.channel!r} is {event.role} "
                              f"here but {role} on line {line}: give one role per channel")
         found[event.channel] = (event.role, event.line)
-    if not events:
+    if not count:
         raise InputError(f"{path}: no events found (is it a {fmt} file?)")
     unknown = sorted(set(roles) - set(found))
     if unknown:
         raise InputError(f"{path}: --role names channel {unknown[0]!r}, which has no event "
                          f"(channels: {', '.join(list(found)[:12])})")
     channel_roles = {name: roles.get(name) or role or DEFAULT_ROLE for name, (role, _) in found.items()}
-    return Layout(channel_roles, lines, lows, highs, events)
+    return Layout(channel_roles, lines, lows, highs, count)
 
 
 def read_events(path: Path, fmt: str, *, channel: str = DEFAULT_CHANNEL,
@@ -234,16 +237,16 @@ def _known_format(fmt: str) -> str:
     return fmt
 
 
-def _write_episodes(source: Path, fmt: str, channel: str, tick_ns: int, layout: Layout, marked: bool,
+def _write_episodes(events: Iterable[Event], source: Path, layout: Layout, tick_ns: int, marked: bool,
                     path: Path, overwrite: bool, metadata: dict[str, str]) -> None:
-    """Read the events again and write each sequence shifted to its start, after an episode
-    marker when ``marked``."""
+    """Write the events of ``source`` (read again) with each sequence shifted to its start,
+    after an episode marker when ``marked``."""
     start_of = layout.starts(tick_ns)
-    current, offset, events = -1, 0, 0
+    current, offset, written = -1, 0, 0
     with EventFile(path, overwrite=overwrite, metadata={METADATA_NAME: metadata}) as out:
         for name, role in layout.roles.items():  # every channel up front: one spec reads all
             out.register(name, role)
-        for event in read_events(source, fmt, channel=channel, tick_ns=tick_ns):
+        for event in events:
             if event.sequence != current:
                 current = event.sequence
                 if current >= layout.sequences:
@@ -255,8 +258,8 @@ def _write_episodes(source: Path, fmt: str, channel: str, tick_ns: int, layout: 
             if event.channel not in layout.roles:
                 raise _changed(source)
             out.write(event.channel, event.time_ns + offset, event.value)
-            events += 1
-        if events != layout.events:
+            written += 1
+        if written != layout.events:
             raise _changed(source)
 
 

@@ -153,6 +153,22 @@ def test_merge_refuses_counts_that_would_overflow_instead_of_writing_a_library_i
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".parquet") == ["big.parquet", "lib.parquet"]
 
 
+def test_merge_refuses_literal_counts_that_would_overflow(pointer_log, tmp_path):
+    from slearn.io.library_file import save_library
+
+    library = tmp_path / "lit.parquet"
+    assert run("learn", "-q", pointer_log("simple", 200), "--scoring", "literal", "-o", library).exit_code == 0
+    loaded = load_library(library)
+    assert loaded.library.max_count() == int(loaded.library.export()["count"].max()) > 0
+    loaded.library._count[loaded.library._count > 0] = 2**62 + 1
+    big = tmp_path / "big.parquet"
+    save_library(big, loaded.library, loaded.vocabulary, spec=loaded.spec, params=loaded.params,
+                 provenance=loaded.provenance)
+    message = one_line(run("merge", big, big, "-o", tmp_path / "merged.parquet"))
+    assert "pattern counts would sum past 9,223,372,036,854,775,807" in message
+    assert not (tmp_path / "merged.parquet").exists()
+
+
 def test_an_existing_folder_given_as_an_output_is_one_line_naming_it(pointer_log, tmp_path):
     """Every output option: a folder is bad input (one line, exit 1, what to do), not a
     four-line usage message, and is refused even with --force."""

@@ -245,6 +245,10 @@ class LiteralLibrary:
         """Trie node ids of all patterns, in recording order."""
         return np.flatnonzero(self._count[: int(self._trie.size[0])] > 0)
 
+    def max_count(self) -> int:
+        """The largest pattern count (0 when empty)."""
+        return int(self._count[: int(self._trie.size[0])].max(initial=0))
+
     def export(self) -> dict[str, np.ndarray]:
         """Patterns as flat arrays: tokens (``token_offsets``/``pattern tokens``), counts, recency."""
         nodes = self.pattern_nodes()

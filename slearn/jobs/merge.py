@@ -127,14 +127,13 @@ def _overflow(a: PatternLibrary | LiteralLibrary, b: PatternLibrary | LiteralLib
 
 def _largest(a: PatternLibrary | LiteralLibrary, b: PatternLibrary | LiteralLibrary) -> list[tuple[str, int, int]]:
     """The largest pattern count (and fresh count) of each library."""
-    def counts(library):
+    def largest(library) -> tuple[int, int]:
         if isinstance(library, LiteralLibrary):
-            return library.export()["count"], np.zeros(0, np.int64)
+            return library.max_count(), 0
         n = int(library.tree.size[1])
-        return library.tree.count[:n], library.tree.fresh[:n]
-    (ca, fa), (cb, fb) = counts(a), counts(b)
-    return [("pattern counts", int(ca.max(initial=0)), int(cb.max(initial=0))),
-            ("fresh counts", int(fa.max(initial=0)), int(fb.max(initial=0)))]
+        return int(library.tree.count[:n].max(initial=0)), int(library.tree.fresh[:n].max(initial=0))
+    (ca, fa), (cb, fb) = largest(a), largest(b)
+    return [("pattern counts", ca, cb), ("fresh counts", fa, fb)]
 
 
 def _incompatibility(a: LoadedLibrary, b: LoadedLibrary) -> str | None:

@@ -142,9 +142,8 @@ def _number_keys(info: FieldInfo) -> tuple[list[str], str]:
 
 
 def _in_degrees(info: FieldInfo, span: float) -> bool:
-    """Whether an angle is in degrees: its name says so, or its values span about one
-    turn of degrees (in radians that would be some fifty turns, a joint spinning freely,
-    which is not read as degrees only when its name does not say ``rad``)."""
+    """Whether an angle is in degrees: its name says ``deg``, or, unless it says ``rad``,
+    its values span about one turn of degrees (360; in radians that is some fifty turns)."""
     name = info.path.rsplit(".", 1)[-1].lower()
     if re.search(r"rad", name):
         return False
